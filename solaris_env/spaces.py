@@ -1,0 +1,491 @@
+"""Action spaces and action conversions shared by the env, the engine and the data pipeline.
+
+Three action representations meet here:
+
+* The **env action** (what agents send to ``step``): a dict with MineRL keys. 23 binary keys
+  (``BINARY_KEYS``, each ``Discrete(2)``) plus ``camera`` = [dpitch, dyaw] in DEGREES, MineRL
+  convention: positive pitch looks DOWN, positive yaw turns RIGHT.
+* The **Mineflayer** convention used by the engine and the recorded data (engine-spec §2.2):
+  radians, +yaw = turn LEFT (counter-clockwise seen from above), +pitch = look UP.
+* The **model vector** (model-spec §8.1): float32 (25,) in ``MODEL_ACTION_KEYS`` order; dims 0..22
+  are binary keyboard/mouse-button flags, dims 23/24 are cameraX (yaw) / cameraY (pitch) in
+  the Mineflayer sign convention, in degrees before ``camera_linear`` and scaled after it.
+
+Converters from recorded data (Mineflayer records, VPT JSONL) reproduce the reference
+``convert_act_slice_mineflayer`` / ``read_act_slice_vpt`` and return raw degrees (no
+``camera_linear``). ``FlatActionCodec`` gives a flat encoding for SB3 policies.
+
+Pure numpy + gymnasium: no jax or torch import.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Iterable, Mapping, Sequence
+from typing import Any, Literal
+
+import numpy as np
+from gymnasium import spaces
+
+# ---------------------------------------------------------------------------------------------
+# Env action contract (MineRL keys)
+# ---------------------------------------------------------------------------------------------
+
+HOTBAR_KEYS = tuple(f"hotbar.{k}" for k in range(1, 10))
+BINARY_KEYS = (
+    "forward", "back", "left", "right", "jump", "sneak", "sprint",
+    "attack", "use", "drop", "inventory", "ESC", "swapHands", "pickItem",
+) + HOTBAR_KEYS
+CAMERA_KEY = "camera"
+ACTION_KEYS = BINARY_KEYS + (CAMERA_KEY,)
+CAMERA_LIMIT_DEG = 180.0  # env camera bound per step, both axes, inclusive
+
+# ---------------------------------------------------------------------------------------------
+# Model action vector (model-spec §8.1)
+# ---------------------------------------------------------------------------------------------
+
+MODEL_ACTION_KEYS = (
+    "inventory", "ESC",
+) + HOTBAR_KEYS + (
+    "forward", "back", "left", "right", "jump", "sneak", "sprint",
+    "swapHands", "attack", "use", "pickItem", "drop",
+    "cameraX", "cameraY",
+)
+MODEL_INDEX = {name: i for i, name in enumerate(MODEL_ACTION_KEYS)}
+MODEL_ACTION_DIM = len(MODEL_ACTION_KEYS)  # 25
+MOUSE_DIM = 2  # cameraX, cameraY
+KEYBOARD_DIM = MODEL_ACTION_DIM - MOUSE_DIM  # 23
+CAMERA_X_INDEX = MODEL_INDEX["cameraX"]  # 23, yaw
+CAMERA_Y_INDEX = MODEL_INDEX["cameraY"]  # 24, pitch
+
+# CameraLinearConverterMatrixGame2: degrees clipped to ±CAMERA_CLIP_DEG, then divided by
+# CAMERA_SCALE_DEG, so the model's mouse input lies in ±20/15 = ±1.3333.
+CAMERA_CLIP_DEG = 20.0
+CAMERA_SCALE_DEG = 15.0
+
+# ---------------------------------------------------------------------------------------------
+# Recorded data formats
+# ---------------------------------------------------------------------------------------------
+
+# engine-spec §3.1: the 24 keys of a Mineflayer record's "action" object, in emitted order.
+RECORDED_ACTION_KEYS = (
+    "forward", "back", "left", "right", "jump", "sprint", "sneak", "camera",
+    "attack", "use", "mount", "dismount", "place_block", "place_entity", "mine",
+) + HOTBAR_KEYS
+
+# engine-spec §3.2: recorded boolean key -> model key it switches on (OR-combined).
+RECORDED_TO_MODEL = {
+    "forward": "forward", "back": "back", "left": "left", "right": "right",
+    "jump": "jump", "sprint": "sprint", "sneak": "sneak",
+    "attack": "attack", "mine": "attack",
+    "use": "use", "mount": "use", "place_block": "use", "place_entity": "use",
+    "dismount": "sneak",
+    **{k: k for k in HOTBAR_KEYS},
+}
+
+# model-spec §8.1: VPT keyboard key -> model key. Keys not listed are ignored.
+VPT_KEY_TO_MODEL = {
+    "key.keyboard.escape": "ESC", "key.keyboard.s": "back", "key.keyboard.q": "drop",
+    "key.keyboard.w": "forward", "key.keyboard.e": "inventory", "key.keyboard.space": "jump",
+    "key.keyboard.a": "left", "key.keyboard.d": "right", "key.keyboard.left.shift": "sneak",
+    "key.keyboard.left.control": "sprint", "key.keyboard.f": "swapHands",
+    **{f"key.keyboard.{k}": f"hotbar.{k}" for k in range(1, 10)},
+}
+VPT_BUTTON_TO_MODEL = {0: "attack", 1: "use", 2: "pickItem"}
+VPT_ATTACK_BUTTON = 0
+VPT_CAMERA_DEG_PER_PIXEL = 360.0 / 2400.0  # mouse dx/dy pixels -> degrees
+
+
+# ---------------------------------------------------------------------------------------------
+# Env action space, no-op and validation
+# ---------------------------------------------------------------------------------------------
+
+
+def make_action_space(seed: int | None = None) -> spaces.Dict:
+    """The per-agent env action space: ``Dict`` in ``ACTION_KEYS`` order.
+
+    Binary keys are ``Discrete(2)``; ``camera`` is ``Box(-180, 180, (2,), float32)`` holding
+    [dpitch, dyaw] in degrees (MineRL convention: +pitch looks down, +yaw turns right).
+    """
+    items = [(key, spaces.Discrete(2)) for key in BINARY_KEYS]
+    camera = spaces.Box(-CAMERA_LIMIT_DEG, CAMERA_LIMIT_DEG, shape=(2,), dtype=np.float32)
+    items.append((CAMERA_KEY, camera))
+    return spaces.Dict(items, seed=seed)
+
+
+def noop() -> dict[str, Any]:
+    """The do-nothing env action: every binary key 0, camera float32 zeros (2,)."""
+    action: dict[str, Any] = {key: 0 for key in BINARY_KEYS}
+    action[CAMERA_KEY] = np.zeros(2, dtype=np.float32)
+    return action
+
+
+def _where(agent: str | None) -> str:
+    """Message prefix naming the agent, if any."""
+    return f"agent {agent!r}: " if agent is not None else ""
+
+
+def _as_binary(value: Any, key: str, where: str) -> int:
+    """Return ``value`` as python int 0/1; accepts bool, int, numpy integer/bool scalars or 0-d arrays."""
+    if isinstance(value, np.ndarray):
+        if value.shape != ():
+            raise ValueError(f"{where}action key {key!r}: expected a scalar 0 or 1, got array of shape {value.shape}")
+        value = value[()]
+    if not isinstance(value, (bool, int, np.bool_, np.integer)):
+        raise ValueError(
+            f"{where}action key {key!r}: expected an int or bool 0/1, got {type(value).__name__} {value!r}"
+        )
+    if value not in (0, 1):
+        raise ValueError(f"{where}action key {key!r}: expected 0 or 1, got {value!r}")
+    return int(value)
+
+
+def _as_finite_pair(value: Any, key: str, where: str) -> np.ndarray:
+    """Return ``value`` as float64 (2,), raising on ragged/non-numeric input, wrong shape or NaN/inf."""
+    try:
+        arr = np.asarray(value)
+    except (ValueError, TypeError) as err:
+        raise ValueError(f"{where}action key {key!r}: expected 2 numbers, got {value!r}") from err
+    if arr.dtype.kind not in "iuf":
+        raise ValueError(f"{where}action key {key!r}: expected a numeric array, got dtype {arr.dtype}")
+    if arr.shape != (2,):
+        raise ValueError(f"{where}action key {key!r}: expected shape (2,), got {arr.shape}")
+    arr = arr.astype(np.float64)
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{where}action key {key!r}: expected finite values, got {arr.tolist()}")
+    return arr
+
+
+def _as_camera(value: Any, where: str) -> np.ndarray:
+    """Return the env camera as float32 (2,) in degrees; raises outside [-180, 180] (never clips)."""
+    arr = _as_finite_pair(value, CAMERA_KEY, where)
+    if np.any(np.abs(arr) > CAMERA_LIMIT_DEG):
+        raise ValueError(
+            f"{where}action key {CAMERA_KEY!r}: expected degrees in [-{CAMERA_LIMIT_DEG}, {CAMERA_LIMIT_DEG}], "
+            f"got {arr.tolist()}"
+        )
+    return arr.astype(np.float32)
+
+
+def _check_keys(keys: Iterable[str], expected: Sequence[str], where: str, what: str) -> None:
+    """Raise ValueError naming the first unknown or missing key."""
+    keys = set(keys)
+    unknown = [k for k in keys if k not in expected]
+    if unknown:
+        raise ValueError(f"{where}unknown {what} key {sorted(map(str, unknown))[0]!r}; expected keys {list(expected)}")
+    missing = [k for k in expected if k not in keys]
+    if missing:
+        raise ValueError(f"{where}missing {what} key {missing[0]!r}")
+
+
+def validate_action(action: Mapping[str, Any], agent: str | None = None) -> dict[str, Any]:
+    """Check one env action and return a normalised copy.
+
+    Returns a dict in ``ACTION_KEYS`` order: binary keys as python int 0/1, camera as float32 (2,).
+    Raises ValueError (naming ``agent`` when given, and the key) on unknown or missing keys,
+    binary values outside {0, 1}, and a camera that is non-numeric, not shape (2,), NaN/inf or
+    outside [-180, 180] degrees. Nothing is clipped.
+    """
+    where = _where(agent)
+    if not isinstance(action, Mapping):
+        raise ValueError(
+            f"{where}expected the action to be a dict with keys {list(ACTION_KEYS)}, got {type(action).__name__}"
+        )
+    _check_keys(action.keys(), ACTION_KEYS, where, "action")
+    out: dict[str, Any] = {key: _as_binary(action[key], key, where) for key in BINARY_KEYS}
+    out[CAMERA_KEY] = _as_camera(action[CAMERA_KEY], where)
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# Camera conventions
+# ---------------------------------------------------------------------------------------------
+
+
+def minerl_camera_to_mineflayer(camera_deg: Any) -> tuple[float, float]:
+    """MineRL camera [dpitch, dyaw] degrees (+down, +right) -> Mineflayer (dyaw, dpitch) radians (+left, +up).
+
+    dyaw = -radians(camera[1]), dpitch = -radians(camera[0]). Exact zero maps to +0.0.
+    """
+    dpitch_deg, dyaw_deg = _as_finite_pair(camera_deg, CAMERA_KEY, "")
+    return 0.0 - math.radians(dyaw_deg), 0.0 - math.radians(dpitch_deg)
+
+
+def mineflayer_to_minerl_camera(dyaw_rad: float, dpitch_rad: float) -> np.ndarray:
+    """Mineflayer (dyaw, dpitch) radians (+left, +up) -> MineRL camera float32 (2,) [dpitch, dyaw] degrees."""
+    dyaw, dpitch = _as_finite_pair([dyaw_rad, dpitch_rad], CAMERA_KEY, "")
+    return np.array([0.0 - math.degrees(dpitch), 0.0 - math.degrees(dyaw)], dtype=np.float32)
+
+
+# ---------------------------------------------------------------------------------------------
+# Model action vector
+# ---------------------------------------------------------------------------------------------
+
+
+def camera_linear(vec_T25: Any) -> np.ndarray:
+    """``CameraLinearConverterMatrixGame2``: model input transform of the two camera dims.
+
+    Args:
+        vec_T25: (..., 25) action vectors with dims 23/24 in degrees.
+    Returns:
+        float32 copy (..., 25) with dims 23/24 = clip(deg, -CAMERA_CLIP_DEG, CAMERA_CLIP_DEG) / CAMERA_SCALE_DEG,
+        i.e. in [-1.3333, 1.3333]. The clip is part of the definition (the model never sees larger
+        per-frame turns), not error handling. Keyboard dims are passed through unchanged.
+    """
+    out = np.array(vec_T25, dtype=np.float32)  # copy
+    if out.ndim == 0 or out.shape[-1] != MODEL_ACTION_DIM:
+        raise ValueError(f"camera_linear: expected shape (..., {MODEL_ACTION_DIM}), got {out.shape}")
+    mouse = out[..., KEYBOARD_DIM:].astype(np.float64)
+    if not np.all(np.isfinite(mouse)):
+        raise ValueError("camera_linear: cameraX/cameraY must be finite")
+    out[..., KEYBOARD_DIM:] = np.clip(mouse, -CAMERA_CLIP_DEG, CAMERA_CLIP_DEG) / CAMERA_SCALE_DEG
+    return out
+
+
+def env_action_to_model_vector(action: Mapping[str, Any], agent: str | None = None) -> np.ndarray:
+    """Env (MineRL) action -> model input vector float32 (25,), ``camera_linear`` applied.
+
+    cameraX = -camera[1] (dyaw, + = left) and cameraY = -camera[0] (dpitch, + = up) in degrees,
+    i.e. the Mineflayer convention of the training data, then scaled by ``camera_linear``.
+    """
+    action = validate_action(action, agent)
+    vec_25 = np.zeros(MODEL_ACTION_DIM, dtype=np.float32)
+    for key in BINARY_KEYS:
+        vec_25[MODEL_INDEX[key]] = action[key]
+    dpitch_deg, dyaw_deg = action[CAMERA_KEY].astype(np.float64)
+    vec_25[CAMERA_X_INDEX] = 0.0 - dyaw_deg
+    vec_25[CAMERA_Y_INDEX] = 0.0 - dpitch_deg
+    return camera_linear(vec_25)
+
+
+def env_actions_to_model_vectors(actions: Sequence[Mapping[str, Any]]) -> np.ndarray:
+    """A sequence of T env actions -> float32 (T, 25) model vectors (``camera_linear`` applied)."""
+    rows = [env_action_to_model_vector(a) for a in actions]
+    return np.stack(rows) if rows else np.zeros((0, MODEL_ACTION_DIM), dtype=np.float32)
+
+
+# ---------------------------------------------------------------------------------------------
+# Mineflayer records (engine-spec §3) -> model vectors
+# ---------------------------------------------------------------------------------------------
+
+
+def _record_to_vector(record: Mapping[str, Any], index: int) -> np.ndarray:
+    """One Mineflayer record (with an ``"action"`` dict) -> float32 (25,), camera in raw degrees."""
+    where = f"record {index}: "
+    action = record.get("action") if isinstance(record, Mapping) else None
+    if not isinstance(action, Mapping):
+        raise ValueError(f"{where}expected a dict with an 'action' dict")
+    _check_keys(action.keys(), RECORDED_ACTION_KEYS, where, "recorded action")
+    vec_25 = np.zeros(MODEL_ACTION_DIM, dtype=np.float32)
+    for key, model_key in RECORDED_TO_MODEL.items():
+        if _as_binary(action[key], key, where):
+            vec_25[MODEL_INDEX[model_key]] = 1.0
+    dyaw_rad, dpitch_rad = _as_finite_pair(action[CAMERA_KEY], CAMERA_KEY, where)
+    vec_25[CAMERA_X_INDEX] = math.degrees(dyaw_rad)  # no sign change: + = left
+    vec_25[CAMERA_Y_INDEX] = math.degrees(dpitch_rad)  # + = up
+    return vec_25
+
+
+def mineflayer_records_to_vectors(records: Sequence[Mapping[str, Any]]) -> np.ndarray:
+    """Reference ``convert_act_slice_mineflayer``: T per-tick records -> float32 (T, 25).
+
+    Mapping (engine-spec §3.2): attack/mine -> attack (19); use/mount/place_block/place_entity
+    -> use (20); dismount -> sneak (16); hotbar.k -> 1+k; camera [dyaw, dpitch] radians ->
+    dims 23/24 in degrees with no sign change. No ``camera_linear`` is applied. Each record's
+    ``action`` must hold exactly ``RECORDED_ACTION_KEYS``; violations raise ValueError naming
+    the record index and key.
+    """
+    rows = [_record_to_vector(record, i) for i, record in enumerate(records)]
+    return np.stack(rows) if rows else np.zeros((0, MODEL_ACTION_DIM), dtype=np.float32)
+
+
+# ---------------------------------------------------------------------------------------------
+# VPT JSONL (model-spec §8.1) -> model vectors
+# ---------------------------------------------------------------------------------------------
+
+
+def _parse_vpt_ticks(lines_or_objs: Iterable[str | Mapping[str, Any]]) -> list[Mapping[str, Any]]:
+    """JSON-decode string lines (blank lines skipped); dicts pass through."""
+    ticks = []
+    for item in lines_or_objs:
+        if isinstance(item, (str, bytes)):
+            if not item.strip():
+                continue
+            item = json.loads(item)
+        if not isinstance(item, Mapping):
+            raise ValueError(f"VPT tick {len(ticks)}: expected a JSON object, got {type(item).__name__}")
+        ticks.append(item)
+    return ticks
+
+
+def _vpt_fields(tick: Mapping[str, Any], index: int) -> tuple[list, list, list, float, float, int]:
+    """Pull (keys, buttons, newButtons, dx, dy, hotbar) out of one VPT tick, raising on missing fields."""
+    try:
+        keys = list(tick["keyboard"]["keys"])
+        mouse = tick["mouse"]
+        buttons, new_buttons = list(mouse["buttons"]), list(mouse["newButtons"])
+        dx, dy, hotbar = float(mouse["dx"]), float(mouse["dy"]), int(tick["hotbar"])
+    except (KeyError, TypeError) as err:
+        raise ValueError(f"VPT tick {index}: missing or malformed field {err}") from err
+    return keys, buttons, new_buttons, dx, dy, hotbar
+
+
+def vpt_jsonl_to_vectors(lines_or_objs: Iterable[str | Mapping[str, Any]]) -> np.ndarray:
+    """Reference ``read_act_slice_vpt``: VPT JSONL ticks (lines or parsed dicts) -> float32 (T, 25).
+
+    keyboard.keys via ``VPT_KEY_TO_MODEL``; mouse buttons 0/1/2 -> attack/use/pickItem; camera
+    cameraX = dx * 360/2400, cameraY = dy * 360/2400 degrees (VPT signs: + = right/down; not
+    reconciled with Mineflayer, as in the reference). No ``camera_linear`` is applied.
+    Stateful, so pass the episode from tick 0 and slice afterwards:
+      * attack stuck: if tick 0 has ``newButtons == [0]``, button 0 is dropped from every tick
+        until a later tick has 0 in ``newButtons`` (that tick keeps it);
+      * hotbar: ``hotbar.(h+1)`` pulses to 1 only on ticks whose ``hotbar`` h differs from the
+        previous tick's (initial previous = 0).
+    """
+    ticks = _parse_vpt_ticks(lines_or_objs)
+    out_T25 = np.zeros((len(ticks), MODEL_ACTION_DIM), dtype=np.float32)
+    attack_stuck, prev_hotbar = False, 0
+    for t, tick in enumerate(ticks):
+        keys, buttons, new_buttons, dx, dy, hotbar = _vpt_fields(tick, t)
+        if t == 0:
+            attack_stuck = new_buttons == [VPT_ATTACK_BUTTON]
+        elif attack_stuck and VPT_ATTACK_BUTTON in new_buttons:
+            attack_stuck = False
+        if attack_stuck:
+            buttons = [b for b in buttons if b != VPT_ATTACK_BUTTON]
+        pressed = [VPT_KEY_TO_MODEL[k] for k in keys if k in VPT_KEY_TO_MODEL]
+        pressed += [VPT_BUTTON_TO_MODEL[b] for b in buttons if b in VPT_BUTTON_TO_MODEL]
+        if hotbar != prev_hotbar:
+            pressed.append(f"hotbar.{hotbar + 1}")
+        prev_hotbar = hotbar
+        out_T25[t, [MODEL_INDEX[name] for name in pressed]] = 1.0
+        out_T25[t, CAMERA_X_INDEX] = dx * VPT_CAMERA_DEG_PER_PIXEL
+        out_T25[t, CAMERA_Y_INDEX] = dy * VPT_CAMERA_DEG_PER_PIXEL
+    return out_T25
+
+
+# ---------------------------------------------------------------------------------------------
+# Flat encoding for SB3
+# ---------------------------------------------------------------------------------------------
+
+
+def _flat_entry_name(i: int) -> str:
+    """Name of flat entry i: a binary key, or camera[0] (dpitch) / camera[1] (dyaw)."""
+    n_binary = len(BINARY_KEYS)
+    return BINARY_KEYS[i] if i < n_binary else f"{CAMERA_KEY}[{i - n_binary}]"
+
+
+class FlatActionCodec:
+    """Flat, SB3-friendly encoding of the env action, and back.
+
+    Layout (25 entries): the 23 ``BINARY_KEYS`` in order, then camera [dpitch, dyaw] (MineRL).
+
+    * ``kind="multidiscrete"``: ``MultiDiscrete([2]*23 + [camera_bins]*2)``. Camera bin i is
+      ``camera_max_deg * (i - c) / c`` degrees with c = camera_bins // 2: linear, symmetric,
+      exact 0 at the centre bin, ends at ±camera_max_deg.
+    * ``kind="box"``: ``Box(-1, 1, (25,), float32)``. A binary key is 1 iff its value > 0 (encode
+      writes +1/-1); camera degrees = value * camera_max_deg.
+
+    ``encode`` is lossy for the camera (snapped to the nearest bin, or clipped to
+    ±camera_max_deg for "box"); ``decode(encode(decode(x))) == decode(x)`` holds exactly.
+
+    Args:
+        camera_bins: odd number >= 3 of camera bins per axis ("multidiscrete" only).
+        camera_max_deg: largest camera step in degrees, in (0, 180].
+        kind: "multidiscrete" or "box".
+    """
+
+    def __init__(
+        self,
+        camera_bins: int = 11,
+        camera_max_deg: float = 10.0,
+        kind: Literal["multidiscrete", "box"] = "multidiscrete",
+    ) -> None:
+        if kind not in ("multidiscrete", "box"):
+            raise ValueError(f"kind: expected 'multidiscrete' or 'box', got {kind!r}")
+        if not isinstance(camera_bins, (int, np.integer)) or camera_bins < 3 or camera_bins % 2 == 0:
+            raise ValueError(f"camera_bins: expected an odd int >= 3 (so 0 deg is a bin), got {camera_bins!r}")
+        if not (0.0 < camera_max_deg <= CAMERA_LIMIT_DEG):
+            raise ValueError(f"camera_max_deg: expected a value in (0, {CAMERA_LIMIT_DEG}], got {camera_max_deg!r}")
+        self.kind = kind
+        self.camera_bins = int(camera_bins)
+        self.camera_max_deg = float(camera_max_deg)
+        half = self.camera_bins // 2
+        self.bin_centers_deg = (self.camera_max_deg * (np.arange(self.camera_bins) - half) / half).astype(np.float32)
+        self.space = self._make_space()
+
+    def _make_space(self) -> spaces.Space:
+        n_binary = len(BINARY_KEYS)
+        if self.kind == "multidiscrete":
+            return spaces.MultiDiscrete([2] * n_binary + [self.camera_bins] * 2)
+        return spaces.Box(-1.0, 1.0, shape=(n_binary + 2,), dtype=np.float32)
+
+    # -- encode -----------------------------------------------------------------------------
+
+    def encode(self, env_action: Mapping[str, Any]) -> np.ndarray:
+        """Env action -> flat (25,) (int64 for "multidiscrete", float32 for "box"); camera is lossy."""
+        action = validate_action(env_action)
+        bits = np.array([action[key] for key in BINARY_KEYS])
+        camera = action[CAMERA_KEY].astype(np.float64)
+        if self.kind == "multidiscrete":
+            return np.concatenate([bits, self._camera_to_bins(camera)]).astype(np.int64)
+        return np.concatenate([2.0 * bits - 1.0, self._camera_to_box(camera)]).astype(np.float32)
+
+    def _camera_to_bins(self, camera_deg: np.ndarray) -> np.ndarray:
+        """Nearest bin index (2,) per axis; values beyond ±camera_max_deg land in the end bins."""
+        half = self.camera_bins // 2
+        index = np.rint(camera_deg / self.camera_max_deg * half) + half
+        return np.clip(index, 0, self.camera_bins - 1).astype(np.int64)
+
+    def _camera_to_box(self, camera_deg: np.ndarray) -> np.ndarray:
+        """float32 (2,) in [-1, 1] whose decode is nearest to camera_deg (exact if camera_deg came from decode)."""
+        guess = np.clip(camera_deg / self.camera_max_deg, -1.0, 1.0).astype(np.float32)
+        candidates = np.stack([
+            np.nextafter(guess, np.float32(-1.0)), guess, np.nextafter(guess, np.float32(1.0)),
+        ])  # (3, 2); float32 division can land one ulp off the value decode started from
+        error = np.abs(self._box_to_camera(candidates) - camera_deg)
+        return candidates[np.argmin(error, axis=0), np.arange(2)]
+
+    # -- decode -----------------------------------------------------------------------------
+
+    def decode(self, flat: Any) -> dict[str, Any]:
+        """Flat (25,) -> validated env action dict; ValueError on wrong shape, dtype or range."""
+        arr = np.asarray(flat)
+        n_flat = len(BINARY_KEYS) + 2
+        if arr.shape != (n_flat,):
+            raise ValueError(f"flat action: expected shape ({n_flat},), got {arr.shape}")
+        if self.kind == "multidiscrete":
+            bits, camera = self._decode_multidiscrete(arr)
+        else:
+            bits, camera = self._decode_box(arr)
+        action: dict[str, Any] = {key: int(b) for key, b in zip(BINARY_KEYS, bits)}
+        action[CAMERA_KEY] = camera
+        return validate_action(action)
+
+    def _decode_multidiscrete(self, arr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Integer (25,) -> (bits (23,), camera float32 (2,) degrees)."""
+        if arr.dtype.kind not in "iu":
+            raise ValueError(f"flat action: expected an integer array for MultiDiscrete, got dtype {arr.dtype}")
+        bad = np.flatnonzero((arr < 0) | (arr >= self.space.nvec))
+        if bad.size:
+            i = int(bad[0])
+            high = self.space.nvec[i] - 1
+            raise ValueError(f"flat action: entry {i} ({_flat_entry_name(i)!r}) = {arr[i]} outside [0, {high}]")
+        n_binary = len(BINARY_KEYS)
+        return arr[:n_binary], self.bin_centers_deg[arr[n_binary:]]
+
+    def _decode_box(self, arr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """float (25,) in [-1, 1] -> (bits (23,), camera float32 (2,) degrees)."""
+        if arr.dtype.kind not in "iuf":
+            raise ValueError(f"flat action: expected a numeric array for Box, got dtype {arr.dtype}")
+        arr = arr.astype(np.float64)  # range-check before any float32 rounding
+        if not np.all(np.abs(arr) <= 1.0):  # also catches NaN
+            i = int(np.flatnonzero(~(np.abs(arr) <= 1.0))[0])
+            raise ValueError(f"flat action: entry {i} ({_flat_entry_name(i)!r}) = {arr[i]} outside [-1, 1]")
+        n_binary = len(BINARY_KEYS)
+        return (arr[:n_binary] > 0).astype(np.int64), self._box_to_camera(arr[n_binary:])
+
+    def _box_to_camera(self, value: np.ndarray) -> np.ndarray:
+        """Box camera value(s) in [-1, 1] -> float32 degrees, computed in float64 then rounded once."""
+        return (value.astype(np.float64) * self.camera_max_deg).astype(np.float32)
