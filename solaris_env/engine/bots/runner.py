@@ -118,6 +118,21 @@ def face(p: Player, target: Player) -> None:
     p.pitch = pitch_to(p.pos, target.pos)
 
 
+def make_players(feet: list[np.ndarray]) -> list[Player]:
+    """Players at the given feet positions with the reference's start kit (64 stone, diamond
+    pickaxe/shovel/axe, an empty hand), each facing the next one."""
+    players = [Player(PLAYER_NAMES[k], skin=k % 2, pos=np.array(f, float), on_ground=True) for k, f in enumerate(feet)]
+    for p in players:
+        give(p, Block.STONE, 64)
+        give(p, Item.DIAMOND_PICKAXE)
+        give(p, Item.DIAMOND_SHOVEL)
+        give(p, Item.DIAMOND_AXE)
+        p.selected_slot = 4  # an empty hand
+    for k, p in enumerate(players):
+        face(p, players[(k + 1) % len(players)])
+    return players
+
+
 def inventory_record(p: Player) -> dict:
     def item(slot: int) -> dict | None:
         it, n = p.hotbar[slot]
@@ -157,15 +172,7 @@ def _setup(cfg: EpisodeConfig, spec: registry.EpisodeSpec, world_seed: int, shar
     world = generate(cfg.world_kind, world_seed, variant=cfg.instance, cfg=cfg.world)
     spawn_rng = np.random.default_rng([world_seed, 1])
     pos = spawn_positions(world, spawn_rng, cfg.num_players, spec.spawn_min, spec.spawn_max, cfg.world)
-    players = [Player(PLAYER_NAMES[k], skin=k % 2, pos=pos[k], on_ground=True) for k in range(cfg.num_players)]
-    for p in players:
-        give(p, Block.STONE, 64)
-        give(p, Item.DIAMOND_PICKAXE)
-        give(p, Item.DIAMOND_SHOVEL)
-        give(p, Item.DIAMOND_AXE)
-        p.selected_slot = 4  # an empty hand
-    for k, p in enumerate(players):
-        face(p, players[(k + 1) % len(players)])
+    players = make_players(pos)
     # Eval episodes are recorded by day (EVAL_TIME_SET_DAY); training sees the natural cycle.
     age = 6000 if spec.is_eval else int(np.random.default_rng([world_seed, 2]).integers(0, 24000))
     game = Game(world, players, world_age=age)
