@@ -1,0 +1,331 @@
+"""Configuration of the world model: one frozen dataclass per component, nested in WorldModelConfig.
+
+Every size the code needs is a field here or a property derived from fields in exactly one place
+(tokens per frame, cache length, action window, RoPE split, ...). Presets:
+
+- ``solaris``: the official full-size layout (model-spec §1, §4, §7): 1.82 B stored DiT parameters.
+- ``tiny``: our CPU default, 64x64 frames (sized from stack.md measurements).
+- ``test``: a micro model for unit tests (compiles in well under a second).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+MULTIPLAYER_METHODS = ("attn", "concat")
+
+
+def _require(cond: bool, msg: str) -> None:
+    if not cond:
+        raise ValueError(msg)
+
+
+# ---------------------------------------------------------------------------------------------
+# Components
+# ---------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class DiTConfig:
+    """The causal video DiT (model-spec §1-§2)."""
+
+    dim: int = 1536
+    num_layers: int = 30
+    num_heads: int = 12
+    ffn_dim: int = 8960
+    freq_dim: int = 256  # sinusoidal timestep embedding size
+    patch_size: tuple[int, int, int] = (1, 2, 2)  # (frames, height, width)
+    eps: float = 1e-6
+    qk_norm: bool = True
+    cross_attn_norm: bool = True
+    window: int = 6  # sliding window in latent frames (causal modes)
+    rope_theta: float = 10000.0
+    rope_max_positions: int = 1024
+    multiplayer: str = "attn"  # "attn" = Solaris (joint self-attention), "concat" = players stacked in channels
+    max_players: int = 2  # rows of the learned player embedding
+    attention_impl: str = "xla"  # the only implementation today; model code never branches on platform
+    dtype: str = "float32"  # compute dtype (bf16 is slower than f32 on our CPUs, stack.md)
+    param_dtype: str = "float32"
+
+    def __post_init__(self):
+        _require(self.dim % self.num_heads == 0, f"dim={self.dim} must be divisible by num_heads={self.num_heads}")
+        _require(self.head_dim % 2 == 0, f"head_dim={self.head_dim} must be even for RoPE")
+        _require(self.multiplayer in MULTIPLAYER_METHODS,
+                 f"multiplayer must be one of {MULTIPLAYER_METHODS}, got {self.multiplayer!r}")
+        _require(self.window >= 1, f"window must be >= 1, got {self.window}")
+        _require(all(p >= 1 for p in self.patch_size), f"patch_size must be positive, got {self.patch_size}")
+
+    @property
+    def head_dim(self) -> int:
+        return self.dim // self.num_heads
+
+    @property
+    def rope_split(self) -> tuple[int, int, int]:
+        """Complex pairs per axis (frame, height, width): 22/21/21 for head_dim 128 (model-spec §2.3)."""
+        pairs = self.head_dim // 2
+        hw = pairs // 3
+        return (pairs - 2 * hw, hw, hw)
+
+
+@dataclass(frozen=True, slots=True)
+class ActionConfig:
+    """The per-player action module (model-spec §4, Matrix-Game 2.0 design)."""
+
+    keyboard_dim: int = 23
+    mouse_dim: int = 2
+    keyboard_embed_dim: int = 128  # hidden_size of keyboard_embed
+    mouse_hidden_dim: int = 1024
+    keyboard_hidden_dim: int = 1024
+    num_heads: int = 16
+    windows_size: int = 3  # latent frames of actions seen by one latent frame
+    rope_theta: float = 256.0
+    rope_dims: tuple[int, int, int] = (8, 28, 28)  # only the first (temporal) part rotates
+    rope_max_positions: int = 7500
+    num_action_blocks: int = 15  # the module runs in blocks [0, num_action_blocks)
+    qk_norm: bool = True
+
+    def __post_init__(self):
+        for name in ("mouse_hidden_dim", "keyboard_hidden_dim"):
+            _require(getattr(self, name) % self.num_heads == 0,
+                     f"{name}={getattr(self, name)} must be divisible by num_heads={self.num_heads}")
+        _require(sum(self.rope_dims) == self.mouse_hidden_dim // self.num_heads,
+                 f"sum(rope_dims)={sum(self.rope_dims)} must equal the head dim "
+                 f"{self.mouse_hidden_dim // self.num_heads}")
+
+    @property
+    def head_dim(self) -> int:
+        return self.mouse_hidden_dim // self.num_heads
+
+    @property
+    def action_dim(self) -> int:
+        return self.keyboard_dim + self.mouse_dim
+
+
+@dataclass(frozen=True, slots=True)
+class VAEConfig:
+    """A Wan-style causal video VAE (model-spec §7.1). ``temporal_downsample[i]`` says whether stage i
+    halves time; the spatial factor is 2 ** (len(dim_mult) - 1)."""
+
+    base_dim: int = 96
+    z_dim: int = 16
+    dim_mult: tuple[int, ...] = (1, 2, 4, 4)
+    num_res_blocks: int = 2
+    temporal_downsample: tuple[bool, ...] = (False, True, True)
+    middle_attention: bool = True
+    # Per-channel latent normalisation z = (mu - mean) / std; empty = identity (set after training).
+    latent_mean: tuple[float, ...] = ()
+    latent_std: tuple[float, ...] = ()
+
+    def __post_init__(self):
+        _require(len(self.temporal_downsample) == len(self.dim_mult) - 1,
+                 f"temporal_downsample has {len(self.temporal_downsample)} entries, expected len(dim_mult)-1 = "
+                 f"{len(self.dim_mult) - 1}")
+        _require(len(self.latent_mean) in (0, self.z_dim) and len(self.latent_std) == len(self.latent_mean),
+                 f"latent_mean/std must both be empty or have z_dim={self.z_dim} entries")
+
+    @property
+    def spatial_factor(self) -> int:
+        return 2 ** (len(self.dim_mult) - 1)
+
+    @property
+    def temporal_factor(self) -> int:
+        return 2 ** sum(self.temporal_downsample)
+
+
+@dataclass(frozen=True, slots=True)
+class ImageEncoderConfig:
+    """A ViT over the first frame whose tokens feed the cross-attention (model-spec §7.2).
+
+    ``blocks_applied`` reproduces the official quirk: only the first block of the 32 runs.
+    """
+
+    image_size: int = 224
+    patch_size: int = 14
+    width: int = 1280
+    num_layers: int = 32
+    num_heads: int = 16
+    mlp_ratio: float = 4.0
+    blocks_applied: int = 1
+    eps: float = 1e-5
+    pixel_mean: tuple[float, float, float] = (0.48145466, 0.4578275, 0.40821073)
+    pixel_std: tuple[float, float, float] = (0.26862954, 0.26130258, 0.27577711)
+
+    def __post_init__(self):
+        _require(self.image_size % self.patch_size == 0,
+                 f"image_size={self.image_size} must be divisible by patch_size={self.patch_size}")
+        _require(1 <= self.blocks_applied <= self.num_layers,
+                 f"blocks_applied={self.blocks_applied} must be in [1, num_layers={self.num_layers}]")
+
+    @property
+    def num_tokens(self) -> int:
+        return (self.image_size // self.patch_size) ** 2 + 1  # patches + CLS
+
+
+@dataclass(frozen=True, slots=True)
+class SamplerConfig:
+    """Few-step flow-matching samplers (model-spec §5.3)."""
+
+    ar_timesteps: tuple[int, ...] = (1000, 750, 500, 250)
+    num_train_timesteps: int = 1000
+    bidirectional_steps: int = 10
+    shift: float = 5.0  # sigma' = shift*sigma / (1 + (shift-1)*sigma) for the N-step schedule
+
+
+# ---------------------------------------------------------------------------------------------
+# The whole model
+# ---------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class WorldModelConfig:
+    name: str
+    frame_height: int
+    frame_width: int
+    num_players: int = 2
+    dit: DiTConfig = field(default_factory=DiTConfig)
+    action: ActionConfig = field(default_factory=ActionConfig)
+    vae: VAEConfig = field(default_factory=VAEConfig)
+    image_encoder: ImageEncoderConfig = field(default_factory=ImageEncoderConfig)
+    sampler: SamplerConfig = field(default_factory=SamplerConfig)
+
+    def __post_init__(self):
+        f = self.vae.spatial_factor
+        _require(self.frame_height % f == 0 and self.frame_width % f == 0,
+                 f"frame size {self.frame_height}x{self.frame_width} must be divisible by the VAE factor {f}")
+        _, ph, pw = self.dit.patch_size
+        _require(self.latent_height % ph == 0 and self.latent_width % pw == 0,
+                 f"latent size {self.latent_height}x{self.latent_width} must be divisible by patch {ph}x{pw}")
+        _require(self.num_players >= 1, f"num_players must be >= 1, got {self.num_players}")
+        _require(self.dit.multiplayer == "concat" or self.num_players <= self.dit.max_players,
+                 f"num_players={self.num_players} exceeds dit.max_players={self.dit.max_players}")
+        _require(self.action.num_action_blocks <= self.dit.num_layers,
+                 f"action.num_action_blocks={self.action.num_action_blocks} > dit.num_layers={self.dit.num_layers}")
+
+    # -- derived sizes (the only place they are computed) --------------------------------------
+    @property
+    def latent_height(self) -> int:
+        return self.frame_height // self.vae.spatial_factor
+
+    @property
+    def latent_width(self) -> int:
+        return self.frame_width // self.vae.spatial_factor
+
+    @property
+    def latent_channels(self) -> int:
+        return self.vae.z_dim
+
+    @property
+    def frames_per_step(self) -> int:
+        """Video frames per latent frame (the env's k)."""
+        return self.vae.temporal_factor
+
+    @property
+    def mask_channels(self) -> int:
+        return self.frames_per_step
+
+    @property
+    def stream_players(self) -> int:
+        """Players on the DiT's player axis: P for ``attn``, 1 for ``concat`` (players in channels)."""
+        return 1 if self.dit.multiplayer == "concat" else self.num_players
+
+    @property
+    def players_in_channels(self) -> int:
+        return self.num_players if self.dit.multiplayer == "concat" else 1
+
+    @property
+    def in_channels(self) -> int:
+        """Patch-embed input: noisy latent + mask + first-frame latent (36 for solaris)."""
+        c = self.players_in_channels
+        return c * (2 * self.latent_channels + self.mask_channels)
+
+    @property
+    def out_channels(self) -> int:
+        return self.players_in_channels * self.latent_channels
+
+    @property
+    def tokens_per_frame(self) -> int:
+        """Tokens per latent frame per stream player (880 for solaris)."""
+        _, ph, pw = self.dit.patch_size
+        return (self.latent_height // ph) * (self.latent_width // pw)
+
+    @property
+    def cache_tokens(self) -> int:
+        """Self-attention KV cache length: window x players x tokens (10560 for solaris)."""
+        return self.dit.window * self.stream_players * self.tokens_per_frame
+
+    @property
+    def action_window(self) -> int:
+        """Actions seen by one latent frame (12 for solaris)."""
+        return self.action.windows_size * self.frames_per_step
+
+    @property
+    def action_left_padding(self) -> int:
+        """Left padding so the action of frame k*i is the last one latent frame i sees (11 for solaris)."""
+        return self.action_window - 1
+
+    @property
+    def mouse_in_dim(self) -> int:
+        """mouse_mlp input: the window's mouse values plus the token features (1560 for solaris)."""
+        return self.players_in_channels * self.action.mouse_dim * self.action_window + self.dit.dim
+
+    @property
+    def keyboard_in_dim(self) -> int:
+        return self.players_in_channels * self.action.keyboard_dim
+
+    def replace(self, **kw) -> "WorldModelConfig":
+        return dataclasses.replace(self, **kw)
+
+    # -- presets ----------------------------------------------------------------------------------
+    @classmethod
+    def solaris(cls, **override) -> "WorldModelConfig":
+        """The official layout: 352x640 frames -> 44x80x16 latents, 880 tokens/player/frame.
+        1,824,481,856 stored DiT parameters (1,619,281,856 active)."""
+        wan_mean = (-0.7571, -0.7089, -0.9113, 0.1075, -0.1745, 0.9653, -0.1517, 1.5508, 0.4134, -0.0715,
+                    0.5517, -0.3632, -0.1922, -0.9497, 0.2503, -0.2921)
+        wan_std = (2.8184, 1.4541, 2.3275, 2.6558, 1.2196, 1.7708, 2.6052, 2.0743, 3.2687, 2.1526, 2.8652,
+                   1.5579, 1.6382, 1.1253, 2.8251, 1.9160)
+        kw = dict(name="solaris", frame_height=352, frame_width=640, vae=VAEConfig(latent_mean=wan_mean,
+                                                                                    latent_std=wan_std))
+        return cls(**{**kw, **override})
+
+    @classmethod
+    def tiny(cls, **override) -> "WorldModelConfig":
+        """CPU default: 64x64 frames -> 8x8x16 latents, patch 2 -> 16 tokens/player/frame, d=256, 8 layers.
+        stack.md: d256/L8 with 16 tokens trains at ~1.4 s/step (B=8, 8 latent frames, P=2) on 2 cores,
+        ~2x faster than patch 1 (64 tokens) at the same width, which leaves room for stage 4."""
+        kw = dict(
+            name="tiny", frame_height=64, frame_width=64,
+            dit=DiTConfig(dim=256, num_layers=8, num_heads=4, ffn_dim=1024, window=6),
+            action=ActionConfig(keyboard_embed_dim=64, mouse_hidden_dim=256, keyboard_hidden_dim=256, num_heads=4,
+                                rope_dims=(8, 28, 28), num_action_blocks=4),
+            vae=VAEConfig(base_dim=32, z_dim=16, dim_mult=(1, 2, 2, 4), num_res_blocks=1,
+                          temporal_downsample=(False, True, True), middle_attention=False),
+            image_encoder=ImageEncoderConfig(image_size=64, patch_size=8, width=128, num_layers=2, num_heads=4,
+                                             blocks_applied=2),
+        )
+        return cls(**{**kw, **override})
+
+    @classmethod
+    def test(cls, **override) -> "WorldModelConfig":
+        """Micro model for unit tests: 32x32 frames, d=64, 2 layers, window 2."""
+        kw = dict(
+            name="test", frame_height=32, frame_width=32,
+            dit=DiTConfig(dim=64, num_layers=2, num_heads=2, ffn_dim=128, freq_dim=32, window=2),
+            action=ActionConfig(keyboard_embed_dim=16, mouse_hidden_dim=64, keyboard_hidden_dim=64, num_heads=2,
+                                rope_dims=(8, 12, 12), num_action_blocks=1),
+            vae=VAEConfig(base_dim=8, z_dim=4, dim_mult=(1, 2, 2, 2), num_res_blocks=1,
+                          temporal_downsample=(False, True, True), middle_attention=False),
+            image_encoder=ImageEncoderConfig(image_size=32, patch_size=8, width=32, num_layers=1, num_heads=2,
+                                             blocks_applied=1),
+        )
+        return cls(**{**kw, **override})
+
+
+PRESETS = {"solaris": WorldModelConfig.solaris, "tiny": WorldModelConfig.tiny, "test": WorldModelConfig.test}
+
+
+def preset(name: str, **override) -> WorldModelConfig:
+    if name not in PRESETS:
+        raise ValueError(f"unknown preset {name!r}; choose from {sorted(PRESETS)}")
+    return PRESETS[name](**override)
