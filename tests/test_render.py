@@ -18,7 +18,7 @@ from solaris_env.engine.constants import EYE_HEIGHT
 from solaris_env.engine.render import RenderConfig, Renderer, Views
 
 SIZE = 48
-CFG = RenderConfig(height=SIZE, width=SIZE, hud=False)
+CFG = RenderConfig(height=SIZE, width=SIZE, hud=False, display_aspect=None)  # square pixels: simple geometry
 CFG_HUD = RenderConfig(height=SIZE, width=SIZE, hud=True)
 ORIGIN = (-32, 48, -32)
 WORLD_SHAPE = (64, 32, 64)
@@ -315,3 +315,21 @@ def test_hud_highlight_follows_selected_slot(hud_renderer):
     left, right = slice(0, SIZE // 3), slice(SIZE - SIZE // 3, SIZE)
     assert first[bottom, left].mean() > last[bottom, left].mean(), "slot 0 frame on the left"
     assert last[bottom, right].mean() > first[bottom, right].mean(), "slot 8 frame on the right"
+
+
+def test_square_frames_keep_the_16_9_field_of_view():
+    """Regression: with square pixels a 70 deg vertical FOV sees only +-35 deg, so the eval's 40 deg
+    turn pushed the partner off-screen; frames now show the 16:9 window resampled."""
+    import math
+
+    eye, feet = (0.5, EYE_Y, 0.5), (0.5, FEET_Y, -7.5)  # partner 8 blocks north
+    yaw = NORTH + math.radians(40)  # turned 40 deg left: the partner is 40 deg to the right
+    views = make_views([eye], [yaw], [0.0], feet=[[feet]], avatar_yaw=[[SOUTH, 0]])
+    seen = {}
+    for aspect in (16 / 9, None):
+        cfg = RenderConfig(height=SIZE, width=SIZE, hud=False, display_aspect=aspect)
+        _, avatar_id = Renderer(cfg).render(snapshots(flat_world()), ORIGIN, views)
+        cols = np.nonzero((avatar_id[0] == 0).any(axis=0))[0]
+        seen[aspect] = cols
+    assert seen[16 / 9].size > 0 and seen[16 / 9].mean() > SIZE * 2 / 3, "on the right third"
+    assert seen[None].size == 0, "square pixels: off-screen"

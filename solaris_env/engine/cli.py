@@ -11,8 +11,9 @@ type, flat-world types run on 2 instances with ids 0..ceil(N/2)-1 each, normal-w
 (turnToLook*) on 1 instance with ids 0..N-1. After an eval collect, ``eval/eval_ids_<Type>.json``
 (rows ``[ep, s1, s1+257, s2, s2+257]``, s = the judge's frame1 = end of the first sneak run + 25,
 §7.1/§7.4) and ``eval/structure_building_summary.json`` (§7.3) are rebuilt from everything on disk.
-Record eval sets at 16:9 (``1280x720``, ``64x36``): the FOV is vertical (70 deg), so square frames
-see only +-35 deg horizontally and rotationEval's 40 deg turn would push the other player off-screen.
+Every frame shows a 16:9 game window (70 deg vertical FOV, ~102 deg horizontal) resampled to the
+requested size (``RenderConfig.display_aspect``), so square frames such as 64x64 keep the reference's
+field of view and rotationEval's 40 deg turn leaves the other player on screen.
 
 Re-running a collect skips finished episodes (all files present). Aborted episodes (a bot failed, or
 the episode hit its time cap) are still written, with ``encountered_error`` /

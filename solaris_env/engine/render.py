@@ -111,6 +111,12 @@ class RenderConfig:
     Args:
         height, width: image size in pixels.
         fov_deg: vertical field of view, like Minecraft's FOV setting.
+        display_aspect: width/height of the game window the frame shows. Minecraft (and the paper's
+            data) is 16:9, so with the default every frame covers the same horizontal field of view
+            (~102 deg at 70 deg vertical) whatever its pixel size: a 64x64 frame is the 16:9 view
+            resampled to a square, exactly as resizing a recorded 640x360 frame would give. This keeps
+            the eval protocol valid at any resolution (a +-40 deg turn leaves the partner on screen).
+            None = square pixels (horizontal extent from width/height).
         view_distance: rays stop here (blocks); fog reaches the sky colour here.
         fog_start_frac: fog begins at this fraction of ``view_distance``.
         hud: draw the hotbar and crosshair.
@@ -119,6 +125,7 @@ class RenderConfig:
     height: int = 64
     width: int = 64
     fov_deg: float = FOV_DEG
+    display_aspect: float | None = 16 / 9
     view_distance: float = 48.0
     fog_start_frac: float = 0.55
     hud: bool = True
@@ -128,6 +135,8 @@ class RenderConfig:
             raise ValueError(f"image size must be positive, got height={self.height} width={self.width}")
         if not 1.0 <= self.fov_deg < 180.0:
             raise ValueError(f"fov_deg must be in [1, 180), got {self.fov_deg}")
+        if self.display_aspect is not None and not 0.1 <= self.display_aspect <= 10.0:
+            raise ValueError(f"display_aspect must be None or in [0.1, 10], got {self.display_aspect}")
         if not self.view_distance > 0.0:
             raise ValueError(f"view_distance must be positive, got {self.view_distance}")
         if not 0.0 <= self.fog_start_frac < 1.0:
@@ -213,7 +222,7 @@ def _height_pyramid(voxels_KXYZ: jax.Array) -> tuple[jax.Array, jax.Array]:
 def _pixel_ndc(cfg: RenderConfig) -> tuple[np.ndarray, np.ndarray]:
     """Image-plane offsets at unit distance of every pixel centre: (right_P, up_P) float32."""
     tan_half = math.tan(math.radians(cfg.fov_deg) / 2.0)
-    aspect = cfg.width / cfg.height
+    aspect = cfg.width / cfg.height if cfg.display_aspect is None else cfg.display_aspect
     rows, cols = np.meshgrid(np.arange(cfg.height), np.arange(cfg.width), indexing="ij")
     right = ((cols + 0.5) / cfg.width * 2.0 - 1.0) * tan_half * aspect
     up = (1.0 - (rows + 0.5) / cfg.height * 2.0) * tan_half
