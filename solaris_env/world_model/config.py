@@ -45,6 +45,7 @@ class DiTConfig:
     multiplayer: str = "attn"  # "attn" = Solaris (joint self-attention), "concat" = players stacked in channels
     max_players: int = 2  # rows of the learned player embedding
     attention_impl: str = "xla"  # the only implementation today; model code never branches on platform
+    context_norm_eps: float = 1e-5  # the two LayerNorms of img_emb (model-spec §2 step 3)
     dtype: str = "float32"  # compute dtype (bf16 is slower than f32 on our CPUs, stack.md)
     param_dtype: str = "float32"
 
@@ -84,6 +85,8 @@ class ActionConfig:
     rope_max_positions: int = 7500
     num_action_blocks: int = 15  # the module runs in blocks [0, num_action_blocks)
     qk_norm: bool = True
+    eps: float = 1e-6  # per-head q/k RMSNorms
+    mouse_mlp_eps: float = 1e-5  # the LayerNorm closing mouse_mlp
 
     def __post_init__(self):
         for name in ("mouse_hidden_dim", "keyboard_hidden_dim"):
@@ -92,10 +95,18 @@ class ActionConfig:
         _require(sum(self.rope_dims) == self.mouse_hidden_dim // self.num_heads,
                  f"sum(rope_dims)={sum(self.rope_dims)} must equal the head dim "
                  f"{self.mouse_hidden_dim // self.num_heads}")
+        _require(self.keyboard_head_dim == self.head_dim,
+                 f"keyboard head dim {self.keyboard_head_dim} must equal the mouse head dim {self.head_dim} "
+                 f"(both branches share the temporal RoPE)")
+        _require(self.rope_dims[0] % 2 == 0, f"rope_dims[0]={self.rope_dims[0]} must be even")
 
     @property
     def head_dim(self) -> int:
         return self.mouse_hidden_dim // self.num_heads
+
+    @property
+    def keyboard_head_dim(self) -> int:
+        return self.keyboard_hidden_dim // self.num_heads
 
     @property
     def action_dim(self) -> int:
@@ -116,6 +127,8 @@ class VAEConfig:
     # Per-channel latent normalisation z = (mu - mean) / std; empty = identity (set after training).
     latent_mean: tuple[float, ...] = ()
     latent_std: tuple[float, ...] = ()
+    dtype: str = "float32"  # compute dtype (the official weights are mostly bf16)
+    param_dtype: str = "float32"
 
     def __post_init__(self):
         _require(len(self.temporal_downsample) == len(self.dim_mult) - 1,
@@ -131,6 +144,18 @@ class VAEConfig:
     @property
     def temporal_factor(self) -> int:
         return 2 ** sum(self.temporal_downsample)
+
+    def latent_frames(self, num_frames: int) -> int:
+        """Latent frames F for T = 1 + temporal_factor * (F - 1) video frames (33 -> 9, 257 -> 65)."""
+        tf = self.temporal_factor
+        _require(num_frames >= 1 and (num_frames - 1) % tf == 0,
+                 f"num_frames={num_frames} must be 1 + {tf} * k for temporal_factor {tf}")
+        return 1 + (num_frames - 1) // tf
+
+    def video_frames(self, num_latent_frames: int) -> int:
+        """Video frames T = 1 + temporal_factor * (F - 1) decoded from F latent frames."""
+        _require(num_latent_frames >= 1, f"num_latent_frames={num_latent_frames} must be >= 1")
+        return 1 + self.temporal_factor * (num_latent_frames - 1)
 
 
 @dataclass(frozen=True, slots=True)
@@ -150,16 +175,27 @@ class ImageEncoderConfig:
     eps: float = 1e-5
     pixel_mean: tuple[float, float, float] = (0.48145466, 0.4578275, 0.40821073)
     pixel_std: tuple[float, float, float] = (0.26862954, 0.26130258, 0.27577711)
+    # CLIP's post-LayerNorm + (width, proj_dim) projection: never run (tokens are returned un-pooled),
+    # kept so the tree matches the official 632,076,800-parameter vision tower; 0 leaves them out.
+    proj_dim: int = 1024
+    dtype: str = "float32"
+    param_dtype: str = "float32"
 
     def __post_init__(self):
         _require(self.image_size % self.patch_size == 0,
                  f"image_size={self.image_size} must be divisible by patch_size={self.patch_size}")
         _require(1 <= self.blocks_applied <= self.num_layers,
                  f"blocks_applied={self.blocks_applied} must be in [1, num_layers={self.num_layers}]")
+        _require(self.width % self.num_heads == 0,
+                 f"width={self.width} must be divisible by num_heads={self.num_heads}")
 
     @property
     def num_tokens(self) -> int:
         return (self.image_size // self.patch_size) ** 2 + 1  # patches + CLS
+
+    @property
+    def head_dim(self) -> int:
+        return self.width // self.num_heads
 
 
 @dataclass(frozen=True, slots=True)
@@ -273,6 +309,11 @@ class WorldModelConfig:
     def keyboard_in_dim(self) -> int:
         return self.players_in_channels * self.action.keyboard_dim
 
+    @property
+    def context_width(self) -> int:
+        """Width of the image-encoder tokens the DiT cross-attends to (1280 for solaris, x P for concat)."""
+        return self.players_in_channels * self.image_encoder.width
+
     def replace(self, **kw) -> "WorldModelConfig":
         return dataclasses.replace(self, **kw)
 
@@ -302,7 +343,7 @@ class WorldModelConfig:
             vae=VAEConfig(base_dim=32, z_dim=16, dim_mult=(1, 2, 2, 4), num_res_blocks=1,
                           temporal_downsample=(False, True, True), middle_attention=False),
             image_encoder=ImageEncoderConfig(image_size=64, patch_size=8, width=128, num_layers=2, num_heads=4,
-                                             blocks_applied=2),
+                                             blocks_applied=2, proj_dim=0),
         )
         return cls(**{**kw, **override})
 
@@ -317,7 +358,7 @@ class WorldModelConfig:
             vae=VAEConfig(base_dim=8, z_dim=4, dim_mult=(1, 2, 2, 2), num_res_blocks=1,
                           temporal_downsample=(False, True, True), middle_attention=False),
             image_encoder=ImageEncoderConfig(image_size=32, patch_size=8, width=32, num_layers=1, num_heads=2,
-                                             blocks_applied=1),
+                                             blocks_applied=1, proj_dim=0),
         )
         return cls(**{**kw, **override})
 

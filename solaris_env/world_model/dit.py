@@ -1,0 +1,503 @@
+"""The multiplayer video DiT (model-spec §2-§3): velocity prediction in VAE latent space.
+
+The network knows nothing about noise schedules or sampling; it maps noisy latents, timesteps on the
+0..1000 scale, first-frame conditioning, image-encoder tokens and actions to a velocity.
+
+Shapes (legend in ``shapes.md``): B batch, P stream players, F latent frames, H/W latent height/width,
+L = h*w tokens per frame per player (or a packed sequence length), D width, M context tokens,
+A action channels, W action window. Inputs of every entry point:
+
+| name | shape | notes |
+|---|---|---|
+| x | (B, P, F, H, W, out_channels) | noisy latents |
+| t | (B, P, F) | one timestep per player and latent frame (diffusion forcing) |
+| cond | (B, P, F, H, W, in_channels - out_channels) | [mask ; first-frame latent] |
+| context | (B, P, M, context_width) | image-encoder tokens of each player's first frame |
+| mouse | (B, P, T_pad, mouse channels) | left-padded actions, T_pad = k*(F-1) + action_window |
+| keyboard | (B, P, T_pad, keyboard channels) | same alignment (see ``action_module``) |
+
+The ``concat`` variant (§3.2) is the same network with one stream player and players stacked in
+channels; ``to_stream`` / ``from_stream`` convert (B, num_players, ...) tensors.
+
+Modes are entry points: ``forward_bidirectional``, ``forward_causal``, ``forward_teacher_forcing`` and
+``decode_step``. The first three run the whole sequence with a frame-level mask; the last attends to
+a rolling cache (``kv_cache``).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import nnx
+
+from solaris_env.world_model import kv_cache, masks, rope
+from solaris_env.world_model.action_module import ActionModule, action_windows, padded_action_length
+from solaris_env.world_model.attention import RMSNorm, attention, dense, layer_norm, stop_gradient_where
+from solaris_env.world_model.config import WorldModelConfig
+
+# ---------------------------------------------------------------------------------------------
+# Helpers
+# ---------------------------------------------------------------------------------------------
+
+
+def sinusoidal_embedding(t: jax.Array, dim: int) -> jax.Array:
+    """(...,) timesteps -> (..., dim) f32 ``[cos(t w), sin(t w)]`` with w_i = 10000^(-i / (dim/2))."""
+    half = dim // 2
+    omega = jnp.power(10000.0, -jnp.arange(half, dtype=jnp.float32) / half)
+    arg = t.astype(jnp.float32)[..., None] * omega
+    return jnp.concatenate([jnp.cos(arg), jnp.sin(arg)], axis=-1)
+
+
+def modulate(x: jax.Array, shift: jax.Array, scale: jax.Array) -> jax.Array:
+    return x * (1 + scale) + shift
+
+
+def pack_players(x_BPFLD: jax.Array) -> jax.Array:
+    """(B, P, F, L, D) -> (B, F*P*L, D): for every frame, player 0's tokens then player 1's."""
+    b, p, f, s, d = x_BPFLD.shape
+    return x_BPFLD.transpose(0, 2, 1, 3, 4).reshape(b, f * p * s, d)
+
+
+def unpack_players(x_BLD: jax.Array, num_players: int, num_frames: int) -> jax.Array:
+    """(B, F*P*L, D) -> (B, P, F, L, D)."""
+    b, _, d = x_BLD.shape
+    return x_BLD.reshape(b, num_frames, num_players, -1, d).transpose(0, 2, 1, 3, 4)
+
+
+def to_stream(cfg: WorldModelConfig, a_BP_C: jax.Array) -> jax.Array:
+    """(B, num_players, ..., C) -> what the DiT sees: unchanged for ``attn``; (B, 1, ..., P*C) for
+    ``concat`` (channels player-major). Works for x, cond, context, mouse and keyboard."""
+    if cfg.dit.multiplayer == "attn":
+        return a_BP_C
+    moved = jnp.moveaxis(a_BP_C, 1, -2)  # (B, ..., P, C)
+    return moved.reshape(moved.shape[:-2] + (-1,))[:, None]
+
+
+def from_stream(cfg: WorldModelConfig, a_B1_C: jax.Array) -> jax.Array:
+    """Inverse of ``to_stream``: (B, 1, ..., P*C) -> (B, P, ..., C) for ``concat``."""
+    if cfg.dit.multiplayer == "attn":
+        return a_B1_C
+    split = a_B1_C[:, 0].reshape(a_B1_C.shape[:1] + a_B1_C.shape[2:-1] + (cfg.num_players, -1))
+    return jnp.moveaxis(split, -2, 1)
+
+
+def timesteps_to_stream(cfg: WorldModelConfig, t_BPF: jax.Array) -> jax.Array:
+    """(B, num_players, F) -> (B, stream_players, F); ``concat`` shares one timestep (player 0's)."""
+    return t_BPF if cfg.dit.multiplayer == "attn" else t_BPF[:, :1]
+
+
+def _fold(a_BP_: jax.Array) -> jax.Array:
+    """Fold players into the batch: (B, P, ...) -> (B*P, ...)."""
+    return a_BP_.reshape((-1,) + a_BP_.shape[2:])
+
+
+# The layer scan and the action-block switch use plain jax.lax control flow with the module merged
+# inside the traced function (functional NNX), so the model also works when callers split it and
+# differentiate or jit a pure function of part of its state (e.g. jax.grad w.r.t. inputs only).
+
+
+def _run_if(pred: jax.Array, module: nnx.Module, run, skip, *operands):
+    """``run(module, *operands)`` if ``pred`` else ``skip(*operands)``; one branch executes."""
+    graphdef, state = nnx.split(module)
+    return jax.lax.cond(pred, lambda st, *ops: run(nnx.merge(graphdef, st), *ops), lambda st, *ops: skip(*ops),
+                        state, *operands)
+
+
+def _scan_layers(blocks: nnx.Module, step, carry, per_layer):
+    """Scan ``step(block, carry, layer_inputs) -> (carry, layer_outputs)`` over the stacked layer axis."""
+    graphdef, state = nnx.split(blocks)
+
+    def body(c, xs):
+        layer_state, layer_inputs = xs
+        return step(nnx.merge(graphdef, layer_state), c, layer_inputs)
+
+    return jax.lax.scan(body, carry, (state, per_layer))
+
+
+class _Conditioning(NamedTuple):
+    """Per-forward inputs every block reads (constant across layers)."""
+    e0_BPF6D: jax.Array  # per-(player, frame) adaLN modulation
+    player_PD: jax.Array  # player embedding rows
+    context_BPMD: jax.Array  # projected image tokens
+    mouse_BPFWA: jax.Array  # action windows per latent frame
+    keyboard_BPFWA: jax.Array
+
+
+class _SequencePlan(NamedTuple):
+    """What distinguishes the whole-sequence modes (bidirectional / causal / teacher forcing)."""
+    angles_LJ: jax.Array  # 3D RoPE of the packed (frame, player, token) sequence
+    token_mask: jax.Array | None  # (L, L) self-attention mask; None = full
+    action_angles_FJ: jax.Array  # temporal RoPE of the action module
+    frame_mask: jax.Array | None  # (F, F) action-module mask; None = full
+    kv_stop_F: jax.Array | None  # frames whose keys/values get no gradient
+    kv_stop_L: jax.Array | None
+
+
+# ---------------------------------------------------------------------------------------------
+# Blocks
+# ---------------------------------------------------------------------------------------------
+
+
+def _dtypes(cfg: WorldModelConfig) -> dict:
+    return dict(dtype=jnp.dtype(cfg.dit.dtype), param_dtype=jnp.dtype(cfg.dit.param_dtype))
+
+
+class _QKVProjection(nnx.Module):
+    """q/k/v/o Linear(D, D) with bias and RMSNorm over the full width of q and k (Wan)."""
+
+    def __init__(self, cfg: WorldModelConfig, *, rngs: nnx.Rngs):
+        d = cfg.dit
+        kw = dict(use_bias=True, rngs=rngs, **_dtypes(cfg))
+        self.num_heads, self.impl = d.num_heads, d.attention_impl
+        self.q, self.k, self.v, self.o = (dense(d.dim, d.dim, **kw) for _ in range(4))
+        norm = lambda: RMSNorm(d.dim, d.eps, param_dtype=kw["param_dtype"], rngs=rngs) if d.qk_norm else None
+        self.norm_q, self.norm_k = norm(), norm()
+
+    def _heads(self, x_BLD: jax.Array) -> jax.Array:
+        return x_BLD.reshape(x_BLD.shape[:2] + (self.num_heads, -1))
+
+    def _project(self, x_BLD, norm, linear) -> jax.Array:
+        y = linear(x_BLD)
+        return self._heads(y if norm is None else norm(y))
+
+    def _out(self, y_BLNK: jax.Array) -> jax.Array:
+        return self.o(y_BLNK.reshape(y_BLNK.shape[:2] + (-1,)))
+
+
+class SelfAttention(_QKVProjection):
+    """Joint self-attention over the packed (frame, player, token) sequence, 3D RoPE on q and k."""
+
+    def _qkv(self, x_BLD, angles_LJ):
+        q = rope.apply_rope(self._project(x_BLD, self.norm_q, self.q), angles_LJ)
+        k = rope.apply_rope(self._project(x_BLD, self.norm_k, self.k), angles_LJ)
+        return q, k, self._heads(self.v(x_BLD))
+
+    def __call__(self, x_BLD: jax.Array, angles_LJ: jax.Array, mask_LL, kv_stop_L=None) -> jax.Array:
+        q, k, v = self._qkv(x_BLD, angles_LJ)
+        k, v = stop_gradient_where(k, kv_stop_L), stop_gradient_where(v, kv_stop_L)
+        return self._out(attention(q, k, v, mask_LL, self.impl))
+
+    def decode(self, x_BLD: jax.Array, angles_LJ: jax.Array, cache: kv_cache.KVCache):
+        """Append this step's (post-RoPE) keys to ``cache`` and attend to all valid slots."""
+        q, k, v = self._qkv(x_BLD, angles_LJ)
+        cache = kv_cache.update(cache, k, v)
+        y = attention(q, cache.k, cache.v, kv_cache.valid_mask(cache), self.impl)
+        return self._out(y), cache
+
+
+class CrossAttention(_QKVProjection):
+    """Per-player attention from the tokens to that player's image-context tokens (no mask, no RoPE)."""
+
+    def __call__(self, x_BLD: jax.Array, context_BMD: jax.Array) -> jax.Array:
+        q = self._project(x_BLD, self.norm_q, self.q)
+        k = self._project(context_BMD, self.norm_k, self.k)
+        return self._out(attention(q, k, self._heads(self.v(context_BMD)), None, self.impl))
+
+
+class DiTBlock(nnx.Module):
+    """adaLN block (model-spec §2.1): player embedding, modulated self-attention, cross-attention,
+    action module (blocks < num_action_blocks only), modulated FFN.
+
+    Args:
+        cfg: world-model config.
+        rngs: parameter initialisation.
+    """
+
+    def __init__(self, cfg: WorldModelConfig, *, rngs: nnx.Rngs):
+        d = cfg.dit
+        kw = dict(rngs=rngs, **_dtypes(cfg))
+        self.eps, self.num_action_blocks = d.eps, cfg.action.num_action_blocks
+        # Wan init: randn / sqrt(dim); the six rows are shift/scale/gate of attention then FFN.
+        self.modulation = nnx.Param(jax.random.normal(rngs.params(), (1, 6, d.dim), kw["param_dtype"])
+                                    / math.sqrt(d.dim))
+        self.self_attn = SelfAttention(cfg, rngs=rngs)
+        self.cross_attn = CrossAttention(cfg, rngs=rngs)
+        self.norm3 = nnx.LayerNorm(d.dim, epsilon=d.eps, **kw) if d.cross_attn_norm else None
+        self.ffn = nnx.Sequential(dense(d.dim, d.ffn_dim, use_bias=True, **kw), jax.nn.gelu,  # tanh GELU
+                                  dense(d.ffn_dim, d.dim, use_bias=True, **kw))
+        self.action_model = ActionModule(cfg, rngs=rngs)
+
+    # -- shared pieces ---------------------------------------------------------------------------
+    def _modulation(self, e0_BPF6D: jax.Array) -> list[jax.Array]:
+        """-> [shift_msa, scale_msa, gate_msa, shift_ffn, scale_ffn, gate_ffn], each (B, P, F, 1, D)."""
+        mod = self.modulation[...].astype(e0_BPF6D.dtype)[None, None] + e0_BPF6D
+        return [mod[:, :, :, i, None, :] for i in range(6)]
+
+    def _attn_input(self, x_BPFLD, mods) -> jax.Array:
+        """Player embedding is already in x; returns the packed, modulated self-attention input."""
+        return pack_players(modulate(layer_norm(x_BPFLD, self.eps), mods[0], mods[1]))
+
+    def _cross_and_actions_input(self, x_BPFLD, y_BLD, mods, cond: _Conditioning) -> jax.Array:
+        b, p, f, s, d = x_BPFLD.shape
+        x_BPFLD = x_BPFLD + unpack_players(y_BLD, p, f) * mods[2]
+        h = x_BPFLD if self.norm3 is None else self.norm3(x_BPFLD)
+        y = self.cross_attn(h.reshape(b * p, f * s, d), _fold(cond.context_BPMD))
+        return x_BPFLD + y.reshape(x_BPFLD.shape)
+
+    def _ffn_residual(self, x_BPFLD, mods) -> jax.Array:
+        return x_BPFLD + self.ffn(modulate(layer_norm(x_BPFLD, self.eps), mods[3], mods[4])) * mods[5]
+
+    # -- entry points ------------------------------------------------------------------------------
+    def __call__(self, x_BPFLD: jax.Array, cond: _Conditioning, plan: _SequencePlan, layer: jax.Array) -> jax.Array:
+        """Whole-sequence block; ``layer`` (traced int) selects whether the action module runs."""
+        mods = self._modulation(cond.e0_BPF6D)
+        x_BPFLD = x_BPFLD + cond.player_PD[None, :, None, None].astype(x_BPFLD.dtype)
+        y = self.self_attn(self._attn_input(x_BPFLD, mods), plan.angles_LJ, plan.token_mask, plan.kv_stop_L)
+        x_BPFLD = self._cross_and_actions_input(x_BPFLD, y, mods, cond)
+        b, p, f, s, d = x_BPFLD.shape
+
+        def run_actions(module, x):
+            x = module(x.reshape(b * p, f, s, d), _fold(cond.mouse_BPFWA), _fold(cond.keyboard_BPFWA),
+                       plan.action_angles_FJ, plan.frame_mask, plan.kv_stop_F)
+            return x.reshape(b, p, f, s, d)
+
+        x_BPFLD = _run_if(layer < self.num_action_blocks, self.action_model, run_actions, lambda x: x, x_BPFLD)
+        return self._ffn_residual(x_BPFLD, mods)
+
+    def decode(self, x_BP1LD: jax.Array, cond: _Conditioning, angles_LJ: jax.Array, action_angles_1J: jax.Array,
+               layer: jax.Array, cache: kv_cache.DiTCache):
+        """One latent frame against this layer's caches -> (x_BP1LD, updated caches)."""
+        mods = self._modulation(cond.e0_BPF6D)
+        x_BP1LD = x_BP1LD + cond.player_PD[None, :, None, None].astype(x_BP1LD.dtype)
+        y, self_cache = self.self_attn.decode(self._attn_input(x_BP1LD, mods), angles_LJ, cache.self_attn)
+        x_BP1LD = self._cross_and_actions_input(x_BP1LD, y, mods, cond)
+        b, p, f, s, d = x_BP1LD.shape
+
+        def run_actions(module, x, mouse_cache, keyboard_cache):
+            x, mouse_cache, keyboard_cache = module.decode(
+                x.reshape(b * p, f, s, d), _fold(cond.mouse_BPFWA), _fold(cond.keyboard_BPFWA),
+                action_angles_1J, mouse_cache, keyboard_cache)
+            return x.reshape(b, p, f, s, d), mouse_cache, keyboard_cache
+
+        x_BP1LD, mouse_cache, keyboard_cache = _run_if(
+            layer < self.num_action_blocks, self.action_model, run_actions, lambda x, mc, kc: (x, mc, kc),
+            x_BP1LD, cache.mouse, cache.keyboard)
+        new_cache = kv_cache.DiTCache(self_attn=self_cache, mouse=mouse_cache, keyboard=keyboard_cache)
+        return self._ffn_residual(x_BP1LD, mods), new_cache
+
+
+# ---------------------------------------------------------------------------------------------
+# Embeddings and head
+# ---------------------------------------------------------------------------------------------
+
+
+class ImageContextProjection(nnx.Module):
+    """``img_emb``: LayerNorm -> Linear -> GELU(tanh) -> Linear -> LayerNorm, per player (model-spec §2 step 3)."""
+
+    def __init__(self, cfg: WorldModelConfig, *, rngs: nnx.Rngs):
+        d, cw, eps = cfg.dit, cfg.context_width, cfg.dit.context_norm_eps
+        kw = dict(rngs=rngs, **_dtypes(cfg))
+        self.proj = nnx.List([
+            nnx.LayerNorm(cw, epsilon=eps, **kw),
+            dense(cw, cw, use_bias=True, **kw),
+            dense(cw, d.dim, use_bias=True, **kw),
+            nnx.LayerNorm(d.dim, epsilon=eps, **kw),
+        ])
+
+    def __call__(self, context_BPMC: jax.Array) -> jax.Array:
+        norm_in, fc1, fc2, norm_out = self.proj
+        return norm_out(fc2(jax.nn.gelu(fc1(norm_in(context_BPMC)))))
+
+
+class Head(nnx.Module):
+    """Output head: LayerNorm (no affine) modulated by the time embedding ``e`` (not e0), then Linear."""
+
+    def __init__(self, cfg: WorldModelConfig, *, rngs: nnx.Rngs):
+        d = cfg.dit
+        kw = _dtypes(cfg)
+        self.eps = d.eps
+        self.modulation = nnx.Param(jax.random.normal(rngs.params(), (1, 2, d.dim), kw["param_dtype"])
+                                    / math.sqrt(d.dim))
+        # Zero-initialised like Wan: the untrained network predicts zero velocity.
+        self.head = dense(d.dim, math.prod(d.patch_size) * cfg.out_channels, use_bias=True, rngs=rngs,
+                          kernel_init=nnx.initializers.zeros_init(), **kw)
+
+    def __call__(self, x_BPFLD: jax.Array, e_BPFD: jax.Array) -> jax.Array:
+        mod = self.modulation[...].astype(e_BPFD.dtype)[None, None] + e_BPFD[..., None, :]  # (B, P, F, 2, D)
+        shift, scale = mod[:, :, :, 0, None], mod[:, :, :, 1, None]
+        return self.head(modulate(layer_norm(x_BPFLD, self.eps), shift, scale))
+
+
+# ---------------------------------------------------------------------------------------------
+# Model
+# ---------------------------------------------------------------------------------------------
+
+
+class WorldDiT(nnx.Module):
+    """The Solaris DiT. Parameter names follow the official checkpoint tree (model-spec §1.1).
+
+    Args:
+        cfg: world-model config; ``cfg.dit.multiplayer`` picks ``attn`` (players on their own axis,
+            joint self-attention) or ``concat`` (one stream player, players in channels).
+        rngs: parameter initialisation (``rngs.params``).
+    """
+
+    def __init__(self, cfg: WorldModelConfig, *, rngs: nnx.Rngs):
+        d = cfg.dit
+        if d.patch_size[0] != 1:
+            raise ValueError(f"temporal patch size must be 1 (one latent frame per token frame), got {d.patch_size}")
+        kw = dict(rngs=rngs, **_dtypes(cfg))
+        self.cfg = cfg
+        self.patch_embedding = nnx.Conv(cfg.in_channels, d.dim, kernel_size=d.patch_size, strides=d.patch_size,
+                                        padding="VALID", kernel_init=nnx.initializers.xavier_uniform(), **kw)
+        normal = nnx.initializers.normal(0.02)
+        self.time_embedding = nnx.Sequential(
+            dense(d.freq_dim, d.dim, use_bias=True, kernel_init=normal, **kw), jax.nn.silu,
+            dense(d.dim, d.dim, use_bias=True, kernel_init=normal, **kw))
+        self.time_projection = nnx.Sequential(jax.nn.silu, dense(d.dim, 6 * d.dim, use_bias=True, **kw))
+        self.img_emb = ImageContextProjection(cfg, rngs=rngs)
+        self.player_embed = nnx.Embed(d.max_players, d.dim, **kw)
+        self.blocks = _stacked_blocks(cfg, rngs)
+        self.head = Head(cfg, rngs=rngs)
+
+    # -- entry points ------------------------------------------------------------------------------
+    def forward_bidirectional(self, x, t, cond, context, mouse, keyboard) -> jax.Array:
+        """Full attention over all frames (stages 1-2, the DMD teacher). Returns v like x."""
+        num_frames = self._validate(x, t, cond, context, mouse, keyboard)
+        return self._forward_sequence(
+            x, t, cond, context, self._windows(mouse, num_frames), self._windows(keyboard, num_frames),
+            rope.frame_positions(num_frames), frame_mask=None, kv_stop_F=None)
+
+    def forward_causal(self, x, t, cond, context, mouse, keyboard) -> jax.Array:
+        """Block-causal sliding window over frames (diffusion forcing: t varies per frame). Returns v like x."""
+        num_frames = self._validate(x, t, cond, context, mouse, keyboard)
+        return self._forward_sequence(
+            x, t, cond, context, self._windows(mouse, num_frames), self._windows(keyboard, num_frames),
+            rope.frame_positions(num_frames), masks.causal_window_frame_mask(num_frames, self.cfg.dit.window),
+            kv_stop_F=None)
+
+    def forward_teacher_forcing(self, clean, noisy, t_clean, t_noisy, cond, context, mouse, keyboard, *,
+                                kv_grad: bool = True) -> jax.Array:
+        """One pass over ``[clean ; noisy]`` with the teacher-forcing mask and per-half RoPE (model-spec
+        §6.3). Noisy frame i sees clean frames (i-W, i) and itself, exactly like a cached decode step.
+        ``kv_grad=False`` stops the gradient through the clean half's keys/values. Returns v of the
+        noisy half, shaped like ``noisy``."""
+        num_frames = self._validate(noisy, t_noisy, cond, context, mouse, keyboard)
+        if clean.shape != noisy.shape or t_clean.shape != t_noisy.shape:
+            raise ValueError(f"clean {clean.shape} / t_clean {t_clean.shape} must match noisy {noisy.shape} / "
+                             f"t_noisy {t_noisy.shape}")
+        twice = lambda a: jnp.concatenate([a, a], axis=2)
+        kv_stop_F = None if kv_grad else np.repeat([True, False], num_frames)
+        v = self._forward_sequence(
+            jnp.concatenate([clean, noisy], axis=2), jnp.concatenate([t_clean, t_noisy], axis=2), twice(cond),
+            context, twice(self._windows(mouse, num_frames)), twice(self._windows(keyboard, num_frames)),
+            rope.teacher_forcing_frame_positions(num_frames),
+            masks.teacher_forcing_frame_mask(num_frames, self.cfg.dit.window), kv_stop_F)
+        return v[:, :, num_frames:]
+
+    def decode_step(self, x, t, cond, context, mouse, keyboard, cache: kv_cache.DiTCache,
+                    start_frame: int | jax.Array):
+        """One latent frame at absolute position ``start_frame`` against the rolling cache.
+
+        Shapes as the class docstring with F = 1; ``mouse``/``keyboard`` are this frame's windows
+        (B, P, action_window, A) (``action_module.window_at``). Returns ``(v, new_cache)``: the cache
+        now holds this frame's keys/values — keep it for the commit pass (clean latent, t = 0),
+        discard it for denoising passes.
+        """
+        self._validate(x, t, cond, context, mouse, keyboard, expect_frames=1)
+        c, d = self.cfg, self.cfg.dit
+        gh, gw = self._grid()
+        cond_in, tokens, e = self._prepare(x, t, cond, context, mouse[:, :, None], keyboard[:, :, None])
+        angles = rope.rope_3d_angles(d.rope_split, d.rope_theta, 1, gh, gw, x.shape[1], start_frame)
+        action_angles = rope.temporal_rope_angles(c.action.rope_dims, c.action.rope_theta, 1, start_frame)
+
+        def step(block, h, per_layer):
+            layer, layer_cache = per_layer
+            return block.decode(h, cond_in, angles, action_angles, layer, layer_cache)
+
+        tokens, cache = _scan_layers(self.blocks, step, tokens, (jnp.arange(d.num_layers), cache))
+        return self._unpatchify(self.head(tokens, e)), cache
+
+    # -- internals -----------------------------------------------------------------------------------
+    def _grid(self) -> tuple[int, int]:
+        _, ph, pw = self.cfg.dit.patch_size
+        return self.cfg.latent_height // ph, self.cfg.latent_width // pw
+
+    def _windows(self, actions_BPTA: jax.Array, num_frames: int) -> jax.Array:
+        return action_windows(actions_BPTA, self.cfg, num_frames)
+
+    def _validate(self, x, t, cond, context, mouse, keyboard, expect_frames: int | None = None) -> int:
+        """Raise ValueError on any shape mismatch; return F."""
+        c = self.cfg
+        if x.ndim != 6 or x.shape[1] != c.stream_players or x.shape[3:] != (c.latent_height, c.latent_width,
+                                                                             c.out_channels):
+            raise ValueError(f"x has shape {x.shape}; expected (B, {c.stream_players}, F, {c.latent_height}, "
+                             f"{c.latent_width}, {c.out_channels})")
+        b, p, f = x.shape[:3]
+        if expect_frames is not None and f != expect_frames:
+            raise ValueError(f"x has {f} frames; this entry point takes {expect_frames}")
+        t_pad = padded_action_length(c, f)
+        expected = {
+            "t": (t.shape, (b, p, f)),
+            "cond": (cond.shape, x.shape[:5] + (c.in_channels - c.out_channels,)),
+            "context": (context.shape[:2] + context.shape[3:], (b, p, c.context_width)),
+            "mouse": (mouse.shape, (b, p, t_pad, c.players_in_channels * c.action.mouse_dim)),
+            "keyboard": (keyboard.shape, (b, p, t_pad, c.keyboard_in_dim)),
+        }
+        for name, (got, want) in expected.items():
+            if tuple(got) != tuple(want):
+                raise ValueError(f"{name} has shape {got}; expected {want} (F={f}, T_pad = k*(F-1)+window = {t_pad})")
+        return f
+
+    def _prepare(self, x, t, cond, context, mouse_BPFWA, keyboard_BPFWA):
+        """Patchify, embed time/context/players -> (conditioning, tokens_BPFLD, e_BPFD)."""
+        b, p, f = x.shape[:3]
+        dtype = jnp.dtype(self.cfg.dit.dtype)
+        xc = jnp.concatenate([x, cond], axis=-1).astype(dtype)  # channel order: [x, mask, first-frame latent]
+        tokens = self.patch_embedding(xc.reshape((b * p,) + xc.shape[2:]))  # (B*P, F, h, w, D)
+        tokens = tokens.reshape(b, p, f, -1, tokens.shape[-1])
+        e = self.time_embedding(sinusoidal_embedding(t, self.cfg.dit.freq_dim).astype(dtype))  # (B, P, F, D)
+        e0 = self.time_projection(e).reshape(b, p, f, 6, -1)
+        player = self.player_embed(jnp.arange(p))
+        cond_in = _Conditioning(e0, player, self.img_emb(context.astype(dtype)), mouse_BPFWA, keyboard_BPFWA)
+        return cond_in, tokens, e
+
+    def _sequence_plan(self, frame_pos_F, frame_mask, kv_stop_F, num_players: int) -> _SequencePlan:
+        c, d = self.cfg, self.cfg.dit
+        gh, gw = self._grid()
+        block = num_players * gh * gw  # all players of a frame form one mask block
+        frame_mask = None if frame_mask is None else jnp.asarray(frame_mask)
+        token_mask = None if frame_mask is None else masks.expand_to_tokens(frame_mask, block)
+        kv_stop_L = None if kv_stop_F is None else np.repeat(kv_stop_F, block)
+        return _SequencePlan(
+            rope.rope_3d_angles_at(d.rope_split, d.rope_theta, frame_pos_F, gh, gw, num_players), token_mask,
+            rope.temporal_rope_angles_at(c.action.rope_dims, c.action.rope_theta, frame_pos_F), frame_mask,
+            kv_stop_F, kv_stop_L)
+
+    def _forward_sequence(self, x, t, cond, context, mouse_BPFWA, keyboard_BPFWA, frame_pos_F, frame_mask,
+                          kv_stop_F) -> jax.Array:
+        cond_in, tokens, e = self._prepare(x, t, cond, context, mouse_BPFWA, keyboard_BPFWA)
+        plan = self._sequence_plan(frame_pos_F, frame_mask, kv_stop_F, x.shape[1])
+
+        def step(block, h, layer):
+            return block(h, cond_in, plan, layer), None
+
+        tokens, _ = _scan_layers(self.blocks, step, tokens, jnp.arange(self.cfg.dit.num_layers))
+        return self._unpatchify(self.head(tokens, e))
+
+    def _unpatchify(self, y_BPFLO: jax.Array) -> jax.Array:
+        """(B, P, F, h*w, pf*ph*pw*C) -> (B, P, F*pf, h*ph, w*pw, C), channels fastest."""
+        b, p, f = y_BPFLO.shape[:3]
+        gh, gw = self._grid()
+        pf, ph, pw = self.cfg.dit.patch_size
+        y = y_BPFLO.reshape(b, p, f, gh, gw, pf, ph, pw, -1).transpose(0, 1, 2, 5, 3, 6, 4, 7, 8)
+        return y.reshape(b, p, f * pf, gh * ph, gw * pw, -1)
+
+
+def _stacked_blocks(cfg: WorldModelConfig, rngs: nnx.Rngs) -> DiTBlock:
+    """num_layers DiTBlocks with parameters stacked on a leading layer axis (for nnx.scan)."""
+
+    @nnx.split_rngs(splits=cfg.dit.num_layers)
+    @nnx.vmap(in_axes=(0,), out_axes=0)
+    def create(r: nnx.Rngs) -> DiTBlock:
+        return DiTBlock(cfg, rngs=r)
+
+    return create(rngs)
+
+
+def count_params(model: nnx.Module) -> int:
+    return sum(math.prod(v.shape) for v in jax.tree.leaves(nnx.state(model, nnx.Param)))

@@ -1,0 +1,96 @@
+"""Rolling KV cache (model-spec §5.2; reference test_kv_cache_analysis)."""
+
+import dataclasses
+import itertools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from solaris_env.world_model import kv_cache
+from solaris_env.world_model.config import DiTConfig, WorldModelConfig
+from solaris_env.world_model.masks import causal_window_frame_mask, expand_to_tokens
+
+
+def _frame_tokens(frame, players, tokens):
+    """K/V (1, P*S, 1, 2) for one frame; entry = (frame id, player*S + token) to recognise it later."""
+    ids = np.stack([np.full(players * tokens, frame), np.arange(players * tokens)], axis=-1).astype(np.float32)
+    return jnp.asarray(ids)[None, :, None, :]
+
+
+@pytest.mark.parametrize("players,tokens,window", list(itertools.product([1, 2], [1, 3], [1, 2, 3])))
+def test_cache_holds_exactly_the_training_window(players, tokens, window):
+    block, steps = players * tokens, 8
+    cache = kv_cache.empty_cache((), 1, window * block, 1, 2, jnp.float32)
+    training = expand_to_tokens(causal_window_frame_mask(steps, window), block)
+    for i in range(steps):
+        k = _frame_tokens(i, players, tokens)
+        cache = kv_cache.update(cache, k, -k)
+        valid = np.asarray(kv_cache.valid_mask(cache))
+        held = np.asarray(cache.k[0, valid, 0])  # (n_valid, 2) in slot order
+        frames = list(range(max(0, i - window + 1), i + 1))
+        want = np.concatenate([np.asarray(_frame_tokens(f, players, tokens))[0, :, 0] for f in frames])
+        np.testing.assert_array_equal(held, want)  # oldest first, (player, token) order inside a frame
+        np.testing.assert_array_equal(np.asarray(cache.v[0, valid, 0]), -want)
+        # The keys a query of frame i sees == the keys the training mask allows (any query token of i).
+        allowed_frames = np.unique(np.nonzero(training[i * block])[0] // block)
+        np.testing.assert_array_equal(np.unique(held[:, 0]), allowed_frames)
+        assert int(cache.length) == min((i + 1) * block, window * block)
+
+
+def test_shapes_fixed_and_length_saturates():
+    cache = kv_cache.empty_cache((3,), 2, 4, 2, 8, jnp.float32)  # leading layer axis
+    for step in range(5):
+        cache = kv_cache.update(cache, jnp.ones((3, 2, 1, 2, 8)), jnp.ones((3, 2, 1, 2, 8)))
+        assert cache.k.shape == cache.v.shape == (3, 2, 4, 2, 8)
+        np.testing.assert_array_equal(cache.length, [min(step + 1, 4)] * 3)
+    assert cache.length.dtype == jnp.int32
+
+
+def test_update_of_several_entries_at_once_keeps_the_last():
+    cache = kv_cache.empty_cache((), 1, 3, 1, 1, jnp.float32)
+    cache = kv_cache.update(cache, jnp.arange(5.0).reshape(1, 5, 1, 1), jnp.zeros((1, 5, 1, 1)))
+    np.testing.assert_array_equal(cache.k[0, :, 0, 0], [2.0, 3.0, 4.0])
+    assert int(cache.length) == 3
+
+
+def test_valid_mask_is_arange_ge_size_minus_length():
+    cache = kv_cache.empty_cache((2,), 1, 5, 1, 1, jnp.float32)
+    for length in range(6):
+        cache = dataclasses.replace(cache, length=jnp.array([length, 5 - length], jnp.int32))
+        got = np.asarray(kv_cache.valid_mask(cache))
+        np.testing.assert_array_equal(got[0], np.arange(5) >= 5 - length)
+        np.testing.assert_array_equal(got[1], np.arange(5) >= length)
+
+
+def test_update_is_jittable_and_pure():
+    cache = kv_cache.empty_cache((), 1, 2, 1, 1, jnp.float32)
+    new = jax.jit(kv_cache.update)(cache, jnp.ones((1, 1, 1, 1)), jnp.ones((1, 1, 1, 1)))
+    assert int(cache.length) == 0 and not cache.k.any()  # the input is untouched
+    assert int(new.length) == 1
+
+
+def test_update_rejects_mismatched_shapes():
+    cache = kv_cache.empty_cache((), 1, 2, 1, 4, jnp.float32)
+    with pytest.raises(ValueError):
+        kv_cache.update(cache, jnp.ones((1, 1, 1, 3)), jnp.ones((1, 1, 1, 3)))
+
+
+@pytest.mark.parametrize("method,players", [("attn", 2), ("concat", 2), ("attn", 1)])
+def test_init_cache_shapes_for_solaris(method, players):
+    cfg = WorldModelConfig.solaris(num_players=players, dit=DiTConfig(multiplayer=method))
+    cache = jax.eval_shape(lambda: kv_cache.init_cache(cfg, batch=3))  # no 2 GB allocation
+    p = players if method == "attn" else 1
+    assert cache.self_attn.k.shape == (30, 3, 6 * p * 880, 12, 128)
+    assert cache.mouse.k.shape == (30, 3 * p * 880, 6, 16, 64)
+    assert cache.keyboard.v.shape == (30, 3 * p, 6, 16, 64)
+    assert cache.self_attn.length.shape == (30,) and cache.self_attn.length.dtype == jnp.int32
+    assert cfg.cache_tokens == 6 * p * 880
+
+
+def test_init_cache_is_empty_and_uses_requested_dtype():
+    cfg = WorldModelConfig.test()
+    cache = kv_cache.init_cache(cfg, batch=1, dtype=jnp.bfloat16)
+    assert cache.self_attn.k.dtype == jnp.bfloat16 and not cache.self_attn.k.any()
+    assert not np.asarray(kv_cache.valid_mask(cache.mouse)).any()
