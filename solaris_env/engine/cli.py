@@ -3,6 +3,7 @@
     solaris-engine collect --out data --episodes 64 --world mixed --resolution 64 --seed 0 --workers 2
     solaris-engine collect --out data --eval --episodes 32 --resolution 1280x720
     solaris-engine preview data --out preview.png          # + preview.mp4 (Alpha | Bravo)
+    solaris-engine export-vpt data --out data              # duet/{train,test} -> vpt/{train,test} (stage 1)
 
 Training episodes are numbered 0..N-1; episode e runs on instance ``offset + e mod --instances``
 (flat surface variant = instance mod 5; ``--world mixed`` = flat on even instances, normal on odd
@@ -302,6 +303,15 @@ def cmd_preview(args) -> int:
     return 0
 
 
+def cmd_export_vpt(args) -> int:
+    from solaris_env.engine.vpt_export import export_vpt
+
+    counts = export_vpt(args.src, args.out, link=not args.copy)
+    for split, c in counts.items():
+        print(f"vpt/{split}: {c}", file=sys.stderr)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="solaris-engine", description=__doc__.split("\n\n")[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -335,6 +345,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--rows", type=int, default=PREVIEW_EPISODES, help="episodes in the contact sheet")
     p.add_argument("--columns", type=int, default=PREVIEW_COLUMNS, help="frames per row")
     p.set_defaults(func=cmd_preview)
+
+    v = sub.add_parser("export-vpt", help="export each bot recording of a collect as a single-player VPT episode")
+    v.add_argument("src", help="a collect output dir (reads SRC/duet/{train,test})")
+    v.add_argument("--out", required=True, help="output root (gets vpt/{train,test}/episodes_info.json + engine/)")
+    v.add_argument("--copy", action="store_true", help="copy the mp4s instead of hard-linking them")
+    v.set_defaults(func=cmd_export_vpt)
     return parser
 
 
