@@ -1,0 +1,266 @@
+"""World-model checkpoints: our format (safetensors + JSON) and the official orbax directories (model-spec §9).
+
+Ours: a directory with
+
+- ``config.json``: ``{"format": FORMAT, "version": VERSION, "components": [...], "config": {...}}``, the
+  ``WorldModelConfig`` as nested dicts (tuples as lists);
+- ``weights.safetensors``: every parameter of the three networks under its flattened NNX state path,
+  prefixed by the component: ``dit/blocks/self_attn/q/kernel``, ``vae/encoder/conv_in/kernel``,
+  ``image_encoder/blocks/0/fc1/kernel`` (list indices are path components).
+
+It is written into a temporary directory next to the target and moved into place with ``os.replace``
+(an existing checkpoint is first moved aside and deleted only after the new one is in place), so a
+reader never sees a half-written checkpoint. Loading builds the networks abstractly from the saved
+config (``nnx.eval_shape``: no initialisation compute), checks every key, shape and dtype, and raises
+ONE ``ValueError`` listing all missing, unexpected and mis-shaped keys.
+
+Official: a directory holding the orbax ``StandardCheckpointer`` directories ``solaris.pt`` (the DiT),
+``vae.pt`` and ``clip.pt`` (despite the suffix, not torch pickles; nothing is ever unpickled). Each holds
+an NNX ``State`` saved by orbax, so every leaf path ends in ``value`` (``blocks/modulation/value``);
+a pure-dict layout without that suffix is accepted too. ``solaris.pt`` must match our ``WorldDiT`` tree
+exactly (the official tree, ``tests/world_model/fixtures/solaris-param-tree.txt``); ``vae.pt`` and
+``clip.pt`` must match the reference VAE / CLIP trees, which ``official`` maps onto our modules. All
+three trees are checked before anything is restored, and one ``ValueError`` lists every missing,
+unexpected and mis-shaped key of every file. Values are restored by orbax and cast to the config's
+``param_dtype`` (the official ``proj_mouse`` is bf16, the VAE mostly bf16).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import pathlib
+import shutil
+import tempfile
+import typing
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import nnx
+
+from solaris_env.world_model import config as config_lib
+from solaris_env.world_model.config import WorldModelConfig
+
+FORMAT = "solaris_env.world_model"
+VERSION = 1
+CONFIG_FILE = "config.json"
+WEIGHTS_FILE = "weights.safetensors"
+OFFICIAL_FILES = {"dit": "solaris.pt", "vae": "vae.pt", "image_encoder": "clip.pt"}
+
+# ---------------------------------------------------------------------------------------------
+# Config <-> JSON
+# ---------------------------------------------------------------------------------------------
+
+
+def config_to_dict(cfg) -> dict:
+    """A (nested) config dataclass -> JSON-ready dict (tuples become lists)."""
+    return json.loads(json.dumps(dataclasses.asdict(cfg)))
+
+
+def _from_value(tp, value, where: str):
+    origin = typing.get_origin(tp)
+    if dataclasses.is_dataclass(tp):
+        return config_from_dict(value, tp, where)
+    if tp is tuple or origin is tuple:
+        if not isinstance(value, (list, tuple)):
+            raise ValueError(f"config field {where} must be a list, got {value!r}")
+        return tuple(value)
+    return value
+
+
+def config_from_dict(data: dict, cls=WorldModelConfig, where: str = "config"):
+    """Inverse of ``config_to_dict``; unknown or missing fields raise ValueError naming them."""
+    if not isinstance(data, dict):
+        raise ValueError(f"{where} must be a JSON object, got {type(data).__name__}")
+    hints = typing.get_type_hints(cls, vars(config_lib))
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(data) - names)
+    if unknown:
+        raise ValueError(f"{where} has unknown fields {unknown} for {cls.__name__}")
+    kwargs = {name: _from_value(hints[name], value, f"{where}.{name}") for name, value in data.items()}
+    try:
+        return cls(**kwargs)
+    except TypeError as err:  # a required field is missing
+        raise ValueError(f"{where}: {err}") from err
+
+
+# ---------------------------------------------------------------------------------------------
+# Flat parameter trees and the one strict check
+# ---------------------------------------------------------------------------------------------
+
+
+def flat_params(state) -> dict[str, jax.Array]:
+    """NNX state -> {'a/b/c': array}."""
+    return {"/".join(map(str, path)): v.get_value() if isinstance(v, nnx.Variable) else v
+            for path, v in nnx.to_flat_state(state)}
+
+
+def _spec(a) -> tuple[tuple[int, ...], str]:
+    return tuple(int(d) for d in a.shape), str(np.dtype(a.dtype))
+
+
+def check_tree(expected: dict[str, tuple], found: dict[str, tuple], where: str, check_dtype: bool = True) -> None:
+    """Compare {key: (shape, dtype)} maps; raise ONE ValueError listing missing, unexpected and
+    mis-shaped (or, with ``check_dtype``, mis-typed) keys."""
+    missing = sorted(set(expected) - set(found))
+    unexpected = sorted(set(found) - set(expected))
+    wrong = []
+    for key in sorted(set(expected) & set(found)):
+        (want_shape, want_dtype), (got_shape, got_dtype) = expected[key], found[key]
+        if tuple(want_shape) != tuple(got_shape) or (check_dtype and want_dtype != got_dtype):
+            wrong.append(f"{key}: expected {tuple(want_shape)} {want_dtype}, found {tuple(got_shape)} {got_dtype}")
+    if missing or unexpected or wrong:
+        lines = [f"checkpoint {where} does not match the model:"]
+        lines += [f"  missing keys ({len(missing)}): {missing}"] if missing else []
+        lines += [f"  unexpected keys ({len(unexpected)}): {unexpected}"] if unexpected else []
+        lines += [f"  mis-shaped keys ({len(wrong)}):"] + [f"    {w}" for w in wrong] if wrong else []
+        raise ValueError("\n".join(lines))
+
+
+def _abstract(config: WorldModelConfig) -> dict[str, tuple]:
+    """{component: (graphdef, abstract state)}."""
+    from solaris_env.world_model.world_model import COMPONENTS, abstract_modules
+    return {name: nnx.split(m) for name, m in zip(COMPONENTS, abstract_modules(config))}
+
+
+def _merge(graphdef, abstract_state, values: dict[str, jax.Array]):
+    flat = [(path, values["/".join(map(str, path))]) for path, _ in nnx.to_flat_state(abstract_state)]
+    return nnx.merge(graphdef, nnx.from_flat_state(flat))
+
+
+# ---------------------------------------------------------------------------------------------
+# Ours: safetensors + JSON
+# ---------------------------------------------------------------------------------------------
+
+
+def save(path, config: WorldModelConfig, params: dict) -> pathlib.Path:
+    """Write ``params`` ({component: NNX state}) and ``config`` to directory ``path`` atomically."""
+    from safetensors.numpy import save_file
+
+    path = pathlib.Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tensors = {f"{name}/{key}": np.ascontiguousarray(np.asarray(value))
+               for name, state in params.items() for key, value in flat_params(state).items()}
+    meta = {"format": FORMAT, "version": VERSION, "components": sorted(params), "config": config_to_dict(config)}
+    tmp = pathlib.Path(tempfile.mkdtemp(prefix=f".{path.name}.tmp-", dir=path.parent))
+    try:
+        save_file(tensors, str(tmp / WEIGHTS_FILE), metadata={"format": FORMAT, "version": str(VERSION)})
+        (tmp / CONFIG_FILE).write_text(json.dumps(meta, indent=1))
+        for name in (WEIGHTS_FILE, CONFIG_FILE):
+            with open(tmp / name, "rb") as f:
+                os.fsync(f.fileno())
+        if path.exists():
+            old = pathlib.Path(tempfile.mkdtemp(prefix=f".{path.name}.old-", dir=path.parent))
+            os.replace(path, old / path.name)
+            os.replace(tmp, path)
+            shutil.rmtree(old)
+        else:
+            os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp)
+    return path
+
+
+def read_config(path) -> WorldModelConfig:
+    meta = json.loads((pathlib.Path(path) / CONFIG_FILE).read_text())
+    if meta.get("format") != FORMAT:
+        raise ValueError(f"{path}/{CONFIG_FILE} has format {meta.get('format')!r}; expected {FORMAT!r}")
+    if meta.get("version") != VERSION:
+        raise ValueError(f"{path}/{CONFIG_FILE} has version {meta.get('version')!r}; this code reads {VERSION}")
+    return config_from_dict(meta["config"])
+
+
+def load(path) -> tuple[WorldModelConfig, tuple]:
+    """Our checkpoint -> (config, (dit, vae, image_encoder) modules)."""
+    from safetensors.numpy import load_file
+
+    path = pathlib.Path(path)
+    config = read_config(path)
+    tensors = load_file(str(path / WEIGHTS_FILE))
+    abstract = _abstract(config)
+    expected = {f"{name}/{key}": _spec(v) for name, (_, state) in abstract.items()
+                for key, v in flat_params(state).items()}
+    check_tree(expected, {k: _spec(v) for k, v in tensors.items()}, str(path))
+    modules = []
+    for name, (graphdef, state) in abstract.items():
+        prefix = f"{name}/"
+        values = {k[len(prefix):]: jnp.asarray(v) for k, v in tensors.items() if k.startswith(prefix)}
+        modules.append(_merge(graphdef, state, values))
+    return config, tuple(modules)
+
+
+# ---------------------------------------------------------------------------------------------
+# Official: orbax StandardCheckpointer directories
+# ---------------------------------------------------------------------------------------------
+
+
+def _stored_specs(directory: pathlib.Path) -> dict[str, tuple]:
+    """{key: (shape, dtype)} of an orbax directory, read from its metadata (an NNX state's trailing
+    ``value`` path component dropped)."""
+    import orbax.checkpoint as ocp
+
+    meta = ocp.StandardCheckpointer().metadata(directory.resolve())
+    specs = {}
+    for key_path, leaf in jax.tree_util.tree_flatten_with_path(getattr(meta, "item_metadata", meta).tree)[0]:
+        parts = [str(getattr(p, "key", getattr(p, "idx", getattr(p, "name", p)))) for p in key_path]
+        key = "/".join(parts[:-1] if len(parts) > 1 and parts[-1] == "value" else parts)
+        specs[key] = (tuple(int(d) for d in leaf.shape), str(leaf.dtype))
+    return specs
+
+
+def load_official(path, config: WorldModelConfig | None = None) -> tuple[WorldModelConfig, tuple]:
+    """Official directory (``solaris.pt``, ``vae.pt``, ``clip.pt``) -> (config, modules).
+
+    ``config`` defaults to the solaris preset; tests pass reduced configs with an official layout (VAE
+    middle attention, CLIP ``proj_dim``). The three key trees are all checked before anything is
+    restored and every difference is reported in one ValueError (a section per file).
+    """
+    from solaris_env.world_model import official
+
+    path = pathlib.Path(path)
+    config = config_lib.WorldModelConfig.solaris() if config is None else config
+    absent = [f for f in OFFICIAL_FILES.values() if not (path / f).is_dir()]
+    if absent:
+        raise ValueError(f"official checkpoint {path} lacks the orbax directories {absent}")
+    dirs = {name: path / filename for name, filename in OFFICIAL_FILES.items()}
+    dit_graphdef, dit_state = _abstract(config)["dit"]
+    dit_params = flat_params(dit_state)
+    expected = {  # (official tree, prefixes of non-parameter leaves that may be present)
+        "dit": ({k: _spec(v) for k, v in dit_params.items()}, ()),
+        "vae": (official.official_vae_tree(config.vae, rng=False), (official.VAE_RNG_PREFIX,)),
+        "image_encoder": (official.official_image_encoder_tree(config.image_encoder), ()),
+    }
+    errors = []
+    for name, (tree, optional) in expected.items():
+        try:
+            official.check_tree(tree, _stored_specs(dirs[name]), str(dirs[name]), optional=optional)
+        except ValueError as err:
+            errors.append(str(err))
+    if errors:
+        raise ValueError("\n".join(errors))
+
+    stored = official.read_official(dirs["dit"], expected["dit"][0])  # DiT tree == ours (model-spec §1.1)
+    dit = _merge(dit_graphdef, dit_state, {k: jnp.asarray(v, dit_params[k].dtype) for k, v in stored.items()})
+    vae = official.load_official_vae(dirs["vae"], config.vae)
+    encoder = official.load_official_image_encoder(dirs["image_encoder"], config.image_encoder)
+    return config, (dit, vae, encoder)
+
+
+def is_official(path) -> bool:
+    return (pathlib.Path(path) / OFFICIAL_FILES["dit"]).is_dir()
+
+
+def load_modules(path, config: WorldModelConfig | None = None) -> tuple[WorldModelConfig, tuple]:
+    """Either format. ``config`` applies to official checkpoints only (ours carry their config)."""
+    path = pathlib.Path(path)
+    if (path / CONFIG_FILE).is_file():
+        if config is not None and config != read_config(path):
+            raise ValueError(f"{path} carries its own config, which differs from the one passed")
+        return load(path)
+    if is_official(path):
+        return load_official(path, config)
+    raise ValueError(f"{path} is neither our checkpoint ({CONFIG_FILE} + {WEIGHTS_FILE}) nor an official "
+                     f"directory with {sorted(OFFICIAL_FILES.values())}")

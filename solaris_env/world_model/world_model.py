@@ -1,0 +1,499 @@
+"""The streaming world model: B worlds x P players, one latent frame (k video frames) per ``step``.
+
+    model = WorldModel.from_preset("tiny", seed=0)          # or WorldModel.load(path)
+    state = model.init(first_frames_BPHW3, jax.random.key(0))
+    state.frame0_BPHW3                                      # decoded latent frame 0 (1 frame/player)
+    frames_BPkHW3, state = model.step(state, actions_BPk25)  # k = model.frames_per_step
+    state = model.reset_worlds(state, done_B, new_first_frames_BPHW3)
+
+Frame 0 (model-spec §5.4). As in the reference, latent frame 0 is *generated* from noise conditioned
+on the first frame (mask + its VAE encoding + image-encoder tokens), not copied. The causal VAE decodes
+latent frame 0 to ONE video frame and every later latent frame to k frames, so ``init`` generates,
+commits and decodes latent frame 0 and stores that frame in ``state.frame0_BPHW3`` (uint8); every
+``step`` then generates latent frame i >= 1 and returns exactly k frames. Video frame index of the
+frames returned by the n-th step (n = 1, 2, ...): k*(n-1)+1 .. k*n, frame 0 being ``frame0_BPHW3``.
+
+Actions. ``actions_BPk25`` of step n are the model's 25-dim vectors (keyboard 23 binary flags, then
+mouse yaw/pitch after ``camera_linear``; ``spaces.env_action_to_model_vector``) of video frames
+k*(n-1)+1 .. k*n. The state keeps the last ``action_window`` actions as a rolling buffer, initialised
+with ``first_actions`` (default: all zeros, "no-op") repeated: exactly the reference's left padding
+(model-spec §4.3), so latent frame i sees actions k*i - action_window + 1 .. k*i, clamped at 0.
+
+One step = few-step sampling (``sampler.sample_frame`` over ``cfg.sampler`` timesteps, x0 prediction +
+fresh noise; the DiT's ``decode_step`` against the rolling KV cache, update discarded), a commit pass
+at t = 0 on the final x0 that writes the cache, and a streaming VAE decode of that latent frame (the
+decoder's causal cache lives in the state).
+
+Static shapes, memory. Every state leaf has a fixed shape with a leading world axis B. The KV caches
+are rolling windows (``kv_cache``), the VAE cache holds a fixed number of frames, the action buffer is
+``action_window`` long and the first-frame conditioning is a table of ``cond_frames`` latent frames
+(below), so memory is flat over arbitrarily long rollouts and ``step`` compiles once. The only growing
+quantity is ``frame_index_B`` (int32): it is the DiT's RoPE start frame (absolute positions, as in the
+reference). RoPE angles are computed directly as position * frequency in f32 (no table), so there is
+no length limit; attention only depends on position differences inside the window, and the f32 angle
+rounding error grows like position * 2^-24 rad (about 1e-3 rad after 10^4 latent frames).
+
+Per-world independence. Every world has its own PRNG key stream, RoPE start frame and KV-cache fill
+level: the DiT and the sampler run under ``jax.vmap`` over worlds (the DiT sees batch 1 per world), the
+VAE decode and ``init`` run one world at a time (``lax.map``: the full-resolution convolutions are
+~1.5x faster on CPU unbatched). So ``reset_worlds`` can restart some worlds (one compiled program for
+any world index, no recompilation) while the others continue.
+
+Noise keys (tests replicate them): world b starts from ``key_b = jax.random.split(rng, B)[b]`` (raw
+uint32 keys); each latent frame does ``key_b, frame_key = split(key_b)`` and
+``k_noise, k_renoise = split(frame_key)``; the initial noise is ``normal(k_noise, (P, 1, h, w, C))``
+and ``k_renoise`` goes to ``sampler.sample_frame``.
+
+First-frame conditioning as a table. The conditioning of latent frame i is the VAE encoding of the
+video [first_frame, gray, gray, ...] (``conditioning``). The VAE encoder is causal with a finite
+temporal receptive field (``encoder_receptive_field``), so from latent frame ``steady_cond_index``
+on it only sees gray frames and is the same tensor for every later frame. ``init`` therefore encodes
+latent frames 0..steady (chunked, ``first_frame_cond_start/next`` in a scan) once, and ``step`` reads
+entry ``min(i, steady)``: no VAE encoder work per step.
+
+Input checks run on the host before any compute and raise ``ValueError`` naming the field and the
+expected value (shapes, dtypes, player count, non-finite actions).
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import nnx, struct
+
+from solaris_env.world_model import kv_cache, sampler
+from solaris_env.world_model.conditioning import first_frame_cond_next, first_frame_cond_start
+from solaris_env.world_model.config import VAEConfig, WorldModelConfig, preset
+from solaris_env.world_model.dit import WorldDiT, from_stream, timesteps_to_stream, to_stream
+from solaris_env.world_model.image_encoder import ImageEncoder
+from solaris_env.world_model.vae import CausalVideoVAE
+
+COMPONENTS = ("dit", "vae", "image_encoder")
+
+# ---------------------------------------------------------------------------------------------
+# Helpers (pure)
+# ---------------------------------------------------------------------------------------------
+
+
+def encoder_receptive_field(vae: VAEConfig) -> int:
+    """Video frames before the newest one that one VAE-encoder output can depend on.
+
+    Mirrors the layer stack of ``vae.Encoder``: every causal time convolution has 3 taps (2 frames of
+    history) at the current temporal stride; ResBlocks have two; a temporal downsample adds its own
+    3-tap conv and doubles the stride. Sum of history * stride over the stack.
+    """
+    history, stride = 2, 1
+    rf = history  # conv_in
+    for i in range(len(vae.dim_mult)):
+        rf += vae.num_res_blocks * 2 * history * stride
+        if i < len(vae.temporal_downsample) and vae.temporal_downsample[i]:
+            rf += history * stride
+            stride *= 2
+    rf += 2 * 2 * history * stride  # middle: two ResBlocks (the attention is per frame)
+    rf += history * stride  # head
+    return rf
+
+
+def steady_cond_index(vae: VAEConfig) -> int:
+    """First latent frame whose conditioning sees only gray frames (it equals every later one):
+    latent i depends on video frames >= k*i - receptive_field, so the smallest i with k*i - rf >= 1."""
+    k = vae.temporal_factor
+    return -(-(encoder_receptive_field(vae) + 1) // k)
+
+
+def frames_to_model(frames_uint8: jax.Array) -> jax.Array:
+    """uint8 [0, 255] -> f32 [-1, 1] (model-spec §8.4)."""
+    return frames_uint8.astype(jnp.float32) / 127.5 - 1.0
+
+
+def frames_to_uint8(video: jax.Array) -> jax.Array:
+    """[-1, 1] -> uint8 by clip(((x + 1) / 2) * 255) and truncation (model-spec §7.1)."""
+    return jnp.clip((video.astype(jnp.float32) + 1.0) * 127.5, 0.0, 255.0).astype(jnp.uint8)
+
+
+def _raw_key(rng) -> jax.Array:
+    """int seed, typed key or raw uint32[2] key -> raw uint32[2] key."""
+    if isinstance(rng, (int, np.integer)):
+        return jax.random.PRNGKey(int(rng))
+    rng = jnp.asarray(rng) if not isinstance(rng, jax.Array) else rng
+    if jnp.issubdtype(rng.dtype, jax.dtypes.prng_key):
+        return jax.random.key_data(rng)
+    if rng.shape != (2,) or rng.dtype != jnp.uint32:
+        raise ValueError(f"rng must be an int seed or a single PRNG key; got shape {rng.shape} dtype {rng.dtype}")
+    return rng
+
+
+# ---------------------------------------------------------------------------------------------
+# State
+# ---------------------------------------------------------------------------------------------
+
+
+@struct.dataclass
+class WorldState:
+    """Everything a batch of worlds carries between steps; every leaf has a leading world axis B.
+
+    h, w = latent height/width, C = latent channels, Cc = conditioning channels (mask + latent),
+    W = action window, A = 25, M/Ce = image-encoder tokens/width, Fc = ``cond_frames``.
+    """
+
+    key_B: jax.Array  # (B, 2) uint32: per-world PRNG key stream
+    frame_index_B: jax.Array  # (B,) int32: index of the next latent frame = its RoPE start frame
+    actions_BPWA: jax.Array  # (B, P, W, A) f32: the last W actions (the left-padded history)
+    context_BPMC: jax.Array  # (B, P, M, Ce): image-encoder tokens of the first frames
+    cond_BPFhwC: jax.Array  # (B, P, Fc, h, w, Cc): conditioning of latent frames 0..Fc-1 (last = steady)
+    dit_cache: kv_cache.DiTCache  # per-world rolling caches, leaves (B, layers, 1, ...)
+    vae_cache: Any  # streaming VAE-decoder cache, leaves (B, P, ...)
+    latent_BP1hwC: jax.Array  # (B, P, 1, h, w, C) f32: the last generated (committed) latent frame
+    frame0_BPHW3: jax.Array  # (B, P, H, W, 3) uint8: latent frame 0 decoded (set by init / reset)
+
+    @property
+    def num_worlds(self) -> int:
+        return self.frame_index_B.shape[0]
+
+
+# ---------------------------------------------------------------------------------------------
+# Pure programs (functional NNX: graphdefs are static, parameters are arguments)
+# ---------------------------------------------------------------------------------------------
+
+
+class Programs:
+    """Pure functions of ``(params, ...)`` for one config; ``params`` = (dit, vae, image_encoder) states.
+
+    ``init``, ``step``, ``reset_one`` are what ``WorldModel`` jits; ``denoise``, ``commit``, ``decode``
+    are the three parts of ``step`` (the benchmark times them separately).
+    """
+
+    def __init__(self, cfg: WorldModelConfig, graphdefs: tuple):
+        self.cfg = cfg
+        self.graphdefs = graphdefs
+        self.timesteps = sampler.ar_schedule(cfg.sampler)
+        self.cond_frames = steady_cond_index(cfg.vae) + 1
+
+    # -- per world: the state's fields lose their leading B axis (``ws.actions_BPWA`` is (P, W, A)
+    #    here); the DiT sees batch 1, the VAE and the image encoder batch P ------------------------------
+    def _modules(self, params):
+        return tuple(nnx.merge(g, p) for g, p in zip(self.graphdefs, params))
+
+    def _velocity(self, dit: WorldDiT, z_P1hwC, t, ws_parts, start):
+        """v of one latent frame and the cache including it: (v_P1hwC, new_cache)."""
+        cfg = self.cfg
+        cond, context, window, cache = ws_parts
+        kb = cfg.action.keyboard_dim
+        p = z_P1hwC.shape[0]
+        t_1P1 = timesteps_to_stream(cfg, jnp.full((1, p, 1), t, jnp.float32))
+        v, new_cache = dit.decode_step(
+            to_stream(cfg, z_P1hwC[None]), t_1P1, to_stream(cfg, cond[None]), to_stream(cfg, context[None]),
+            to_stream(cfg, window[None, :, :, kb:]), to_stream(cfg, window[None, :, :, :kb]), cache, start)
+        return from_stream(cfg, v)[0], new_cache
+
+    def _window(self, ws: WorldState, actions_PkA):
+        """The rolling action buffer with this step's k actions appended: (P, W, A)."""
+        k = self.cfg.frames_per_step
+        return jnp.concatenate([ws.actions_BPWA[:, k:], actions_PkA.astype(jnp.float32)], axis=1)
+
+    def _frame_inputs(self, ws: WorldState, actions_PkA):
+        """(cond of the frame, context, its action window, cache) for the next latent frame."""
+        window = self._window(ws, actions_PkA)
+        index = jnp.minimum(ws.frame_index_B, self.cond_frames - 1)
+        cond = jax.lax.dynamic_slice_in_dim(ws.cond_BPFhwC, index, 1, axis=1)  # (P, 1, h, w, Cc)
+        return cond, ws.context_BPMC, window, ws.dit_cache
+
+    def _sample(self, dit, parts, frame_key, start):
+        cfg = self.cfg
+        k_noise, k_renoise = jax.random.split(frame_key)
+        shape = (parts[1].shape[0], 1, cfg.latent_height, cfg.latent_width, cfg.latent_channels)
+        z = jax.random.normal(k_noise, shape, jnp.float32)
+        denoise = lambda x, t: self._velocity(dit, x, t, parts, start)[0]  # cache update discarded
+        return sampler.sample_frame(denoise, z, k_renoise, self.timesteps, cfg.sampler.num_train_timesteps)
+
+    def _commit(self, dit, parts, x0_P1hwC, start):
+        """Commit pass at t = 0 on the clean latent: writes this frame's keys/values into the caches."""
+        return self._velocity(dit, x0_P1hwC, 0.0, parts, start)[1]
+
+    def _denoise_world(self, params, ws: WorldState, actions_PkA):
+        dit = self._modules(params)[0]
+        _, frame_key = jax.random.split(ws.key_B)
+        return self._sample(dit, self._frame_inputs(ws, actions_PkA), frame_key, ws.frame_index_B)
+
+    def _commit_world(self, params, ws: WorldState, actions_PkA, x0_P1hwC):
+        dit = self._modules(params)[0]
+        return self._commit(dit, self._frame_inputs(ws, actions_PkA), x0_P1hwC, ws.frame_index_B)
+
+    def _decode_world(self, params, ws: WorldState, x0_P1hwC):
+        vae = self._modules(params)[1]
+        video, vae_cache = vae.decode_step(x0_P1hwC, ws.vae_cache)  # (P, k, H, W, 3) in [-1, 1]
+        return frames_to_uint8(video), vae_cache
+
+    def _advance(self, ws: WorldState, actions_PkA, x0_P1hwC, dit_cache, vae_cache) -> WorldState:
+        """The bookkeeping after a step: next key, frame index, action buffer, caches, latent."""
+        next_key, _ = jax.random.split(ws.key_B)
+        return ws.replace(key_B=next_key, frame_index_B=ws.frame_index_B + 1,
+                          actions_BPWA=self._window(ws, actions_PkA), dit_cache=dit_cache, vae_cache=vae_cache,
+                          latent_BP1hwC=x0_P1hwC)
+
+    def _cond_table(self, vae, first_PHW3):
+        """(P, cond_frames, h, w, Cc): conditioning of latent frames 0..steady, encoded chunk by chunk."""
+        cond0, enc_state = first_frame_cond_start(vae, first_PHW3)
+
+        def next_cond(state, _):
+            cond, state = first_frame_cond_next(vae, state)
+            return state, cond[:, 0]
+
+        _, rest = jax.lax.scan(next_cond, enc_state, None, length=self.cond_frames - 1)  # (Fc-1, P, h, w, Cc)
+        return jnp.concatenate([cond0, jnp.moveaxis(rest, 0, 1)], axis=1)
+
+    def _init_world(self, params, first_PHW3_uint8, first_actions_PA, key):
+        """One world: encode the first frames, then generate, commit and decode latent frame 0."""
+        cfg = self.cfg
+        dit, vae, encoder = self._modules(params)
+        first = frames_to_model(first_PHW3_uint8)
+        context = encoder(first)  # (P, M, Ce)
+        cond = self._cond_table(vae, first)
+        actions = jnp.repeat(first_actions_PA.astype(jnp.float32)[:, None], cfg.action_window, axis=1)
+        cache = kv_cache.init_cache(cfg, 1)  # batch 1: the DiT sees one world at a time
+        start = jnp.zeros((), jnp.int32)
+        parts = (cond[:, :1], context, actions, cache)
+        key, frame_key = jax.random.split(key)
+        x0 = self._sample(dit, parts, frame_key, start)
+        cache = self._commit(dit, parts, x0, start)
+        video, vae_cache = vae.decode_step(x0, None)  # latent frame 0 -> 1 video frame
+        return WorldState(key_B=key, frame_index_B=start + 1, actions_BPWA=actions, context_BPMC=context,
+                          cond_BPFhwC=cond, dit_cache=cache, vae_cache=vae_cache, latent_BP1hwC=x0,
+                          frame0_BPHW3=frames_to_uint8(video[:, 0]))
+
+    # -- batched over worlds (what gets jitted) -------------------------------------------------------
+    def init(self, params, first_frames_BPHW3, first_actions_BPA, rng):
+        # one world at a time: dominated by the VAE encoder (cond table), which is faster unbatched on CPU
+        keys = jax.random.split(rng, first_frames_BPHW3.shape[0])
+        return jax.lax.map(lambda args: self._init_world(params, *args), (first_frames_BPHW3, first_actions_BPA, keys))
+
+    def step(self, params, state: WorldState, actions_BPkA):
+        x0 = self.denoise(params, state, actions_BPkA)
+        dit_cache = self.commit(params, state, actions_BPkA, x0)
+        frames, vae_cache = self.decode(params, state, x0)
+        return frames, jax.vmap(self._advance)(state, actions_BPkA, x0, dit_cache, vae_cache)
+
+    def denoise(self, params, state: WorldState, actions_BPkA):
+        return jax.vmap(self._denoise_world, in_axes=(None, 0, 0))(params, state, actions_BPkA)
+
+    def commit(self, params, state: WorldState, actions_BPkA, x0_BP1hwC):
+        return jax.vmap(self._commit_world, in_axes=(None, 0, 0, 0))(params, state, actions_BPkA, x0_BP1hwC)
+
+    def decode(self, params, state: WorldState, x0_BP1hwC):
+        # one world at a time: the VAE's full-resolution convolutions run ~1.5x faster on CPU with the
+        # activations of P*k frames than with B*P*k (cache locality); the DiT is better batched.
+        return jax.lax.map(lambda args: self._decode_world(params, *args), (state, x0_BP1hwC))
+
+    def reset_one(self, params, state: WorldState, index, first_PHW3, first_actions_PA, key):
+        """Replace world ``index`` (traced int) by a fresh world; the others are untouched."""
+        fresh = self._init_world(params, first_PHW3, first_actions_PA, key)
+        return jax.tree.map(lambda old, new: old.at[index].set(new), state, fresh)
+
+
+# ---------------------------------------------------------------------------------------------
+# The streaming API
+# ---------------------------------------------------------------------------------------------
+
+
+class WorldModel:
+    """Batched streaming world model (see the module docstring for the contract).
+
+    Args:
+        config: the world-model config.
+        dit, vae, image_encoder: the three networks (concrete modules; they are split once here).
+    """
+
+    def __init__(self, config: WorldModelConfig, dit: WorldDiT, vae: CausalVideoVAE, image_encoder: ImageEncoder):
+        self._cfg = config
+        graphdefs, params = zip(*(nnx.split(m) for m in (dit, vae, image_encoder)))
+        self._params = tuple(params)
+        self.programs = Programs(config, tuple(graphdefs))
+        # jit once; the state is donated (callers must use the returned state, not the old one)
+        self._init_fn = jax.jit(self.programs.init)
+        self._step_fn = jax.jit(self.programs.step, donate_argnums=(1,))
+        self._reset_fn = jax.jit(self.programs.reset_one, donate_argnums=(1,))
+
+    # -- construction -----------------------------------------------------------------------------
+    @classmethod
+    def from_preset(cls, name: str, seed: int = 0, **override) -> "WorldModel":
+        """Random initialisation of a preset (``config.preset``); ``override`` replaces config fields."""
+        return cls.from_config(preset(name, **override), seed)
+
+    @classmethod
+    def from_config(cls, config: WorldModelConfig, seed: int = 0) -> "WorldModel":
+        """Random initialisation (the modules' own initialisers, compiled with an RBG key for speed)."""
+        graphdefs, initialise = _initializer(config)
+        states = initialise(jax.random.key(seed, impl="unsafe_rbg"))
+        return cls(config, *(nnx.merge(g, s) for g, s in zip(graphdefs, states)))
+
+    @classmethod
+    def load(cls, path, config: WorldModelConfig | None = None) -> "WorldModel":
+        """Load our checkpoint (``save``) or an official orbax directory (``solaris.pt``, ``vae.pt``,
+        ``clip.pt``; ``config`` defaults to the solaris preset). See ``checkpoint``."""
+        from solaris_env.world_model import checkpoint
+        config, modules = checkpoint.load_modules(path, config)
+        return cls(config, *modules)
+
+    def save(self, path) -> None:
+        """Write our checkpoint format (safetensors + JSON config, atomically)."""
+        from solaris_env.world_model import checkpoint
+        checkpoint.save(path, self._cfg, dict(zip(COMPONENTS, self._params)))
+
+    # -- properties -----------------------------------------------------------------------------------
+    @property
+    def config(self) -> WorldModelConfig:
+        return self._cfg
+
+    @property
+    def params(self) -> tuple:
+        """(dit, vae, image_encoder) parameter states, as passed to ``programs``."""
+        return self._params
+
+    def modules(self) -> tuple:
+        """Fresh (dit, vae, image_encoder) modules sharing this model's parameters."""
+        return self.programs._modules(self._params)
+
+    @property
+    def frame_shape(self) -> tuple[int, int, int]:
+        return (self._cfg.frame_height, self._cfg.frame_width, 3)
+
+    @property
+    def num_players(self) -> int:
+        return self._cfg.num_players
+
+    @property
+    def frames_per_step(self) -> int:
+        """k: video frames per ``step`` (the VAE's temporal factor)."""
+        return self._cfg.frames_per_step
+
+    @property
+    def action_dim(self) -> int:
+        return self._cfg.action.action_dim
+
+    @property
+    def cond_frames(self) -> int:
+        return self.programs.cond_frames
+
+    # -- streaming ------------------------------------------------------------------------------------
+    def init(self, first_frames, rng, first_actions=None) -> WorldState:
+        """Start B worlds from their first frames.
+
+        Args:
+            first_frames: (B, P, H, W, 3) uint8.
+            rng: int seed or PRNG key; world b uses ``jax.random.split(rng, B)[b]``.
+            first_actions: optional (B, P, 25) action of frame 0 (left-padding value); default zeros.
+        Returns:
+            the state; ``state.frame0_BPHW3`` is latent frame 0 decoded (one frame per player).
+        """
+        first_frames = self._check_frames(first_frames, "first_frames")
+        b = first_frames.shape[0]
+        first_actions = self._check_first_actions(first_actions, b)
+        return self._init_fn(self._params, first_frames, first_actions, _raw_key(rng))
+
+    def step(self, state: WorldState, actions) -> tuple[jax.Array, WorldState]:
+        """Generate one latent frame per world: ``actions`` (B, P, k, 25) -> (frames (B, P, k, H, W, 3)
+        uint8, new state). ``state`` is donated: use only the returned one."""
+        self._check_state(state)
+        actions = self._check_actions(actions, state.num_worlds, (self.frames_per_step,), "actions",
+                                      "(B, P, k, 25)")
+        return self._step_fn(self._params, state, actions)
+
+    def reset_worlds(self, state: WorldState, mask_B, first_frames, rng=None, first_actions=None) -> WorldState:
+        """Restart the worlds where ``mask_B`` is True from ``first_frames[b]`` (other rows ignored).
+
+        Each reset world is re-initialised exactly like ``init`` (one compiled program for any world
+        index, so nothing recompiles); the other worlds' entries are untouched. ``rng=None`` continues
+        each reset world's own key stream; with ``rng``, world b gets ``split(rng, B)[b]`` as in ``init``.
+        ``state`` is donated.
+        """
+        self._check_state(state)
+        b = state.num_worlds
+        mask = np.asarray(mask_B)
+        if mask.shape != (b,) or mask.dtype != np.bool_:
+            raise ValueError(f"mask_B has shape {mask.shape} dtype {mask.dtype}; expected ({b},) bool")
+        first_frames = self._check_frames(first_frames, "first_frames", batch=b)
+        first_actions = self._check_first_actions(first_actions, b)
+        # host copy: the state's buffers are donated by the first reset below
+        keys = np.asarray(state.key_B if rng is None else jax.random.split(_raw_key(rng), b))
+        for index in np.flatnonzero(mask):
+            state = self._reset_fn(self._params, state, jnp.int32(index), first_frames[index],
+                                   first_actions[index], keys[index])
+        return state
+
+    # -- input checks (host side, before any compute) -----------------------------------------------
+    def _check_frames(self, frames, name: str, batch: int | None = None) -> jax.Array:
+        dtype = getattr(frames, "dtype", None)
+        if dtype is None or np.dtype(dtype) != np.uint8:
+            raise ValueError(f"{name} must be uint8 in [0, 255]; got dtype {dtype}")
+        shape = tuple(frames.shape)
+        p, (h, w, c) = self.num_players, self.frame_shape
+        if len(shape) != 5 or shape[2:] != (h, w, c) or shape[0] < 1:
+            raise ValueError(f"{name} has shape {shape}; expected (B, P={p}, H={h}, W={w}, 3)")
+        if shape[1] != p:
+            raise ValueError(f"{name} has {shape[1]} players; this model has num_players={p}")
+        if batch is not None and shape[0] != batch:
+            raise ValueError(f"{name} has {shape[0]} worlds; the state has B={batch}")
+        return jnp.asarray(frames)
+
+    def _check_actions(self, actions, batch: int, middle: tuple, name: str, layout: str) -> jax.Array:
+        dtype = getattr(actions, "dtype", None)
+        real = dtype is not None and any(jnp.issubdtype(dtype, kind) for kind in (jnp.floating, jnp.integer,
+                                                                                  jnp.bool_))
+        if not real:
+            raise ValueError(f"{name} must be a real-valued array (float, int or bool); got dtype {dtype}")
+        expected = (batch, self.num_players, *middle, self.action_dim)
+        shape = tuple(actions.shape)
+        if len(shape) == len(expected) and shape[1] != self.num_players:
+            raise ValueError(f"{name} has {shape[1]} players; this model has num_players={self.num_players}")
+        if shape != expected:
+            raise ValueError(f"{name} has shape {shape}; expected {layout} = {expected}")
+        host_actions = np.asarray(actions, np.float32)
+        if not np.isfinite(host_actions).all():
+            raise ValueError(f"{name} contains NaN or inf values; every entry must be finite")
+        return jnp.asarray(host_actions)
+
+    def _check_first_actions(self, first_actions, batch: int) -> jax.Array:
+        if first_actions is None:
+            return jnp.zeros((batch, self.num_players, self.action_dim), jnp.float32)
+        return self._check_actions(first_actions, batch, (), "first_actions", "(B, P, 25)")
+
+    def _check_state(self, state) -> None:
+        if not isinstance(state, WorldState):
+            raise ValueError(f"state must be the WorldState returned by init/step; got {type(state).__name__}")
+        p = state.actions_BPWA.shape[1]
+        if p != self.num_players:
+            raise ValueError(f"state has {p} players; this model has num_players={self.num_players}")
+
+
+@functools.lru_cache(maxsize=8)
+def _initializer(config: WorldModelConfig):
+    """(graphdefs, jitted key -> parameter states) for a config; cached so re-seeding does not recompile."""
+    graphdefs = tuple(nnx.split(m)[0] for m in abstract_modules(config))
+
+    def make(key):
+        k_dit, k_vae, k_enc = jax.random.split(key, 3)
+        return (nnx.state(WorldDiT(config, rngs=nnx.Rngs(k_dit))),
+                nnx.state(CausalVideoVAE(config.vae, rngs=nnx.Rngs(k_vae))),
+                nnx.state(ImageEncoder(config.image_encoder, rngs=nnx.Rngs(k_enc))))
+
+    return graphdefs, jax.jit(make)
+
+
+def abstract_modules(config: WorldModelConfig) -> tuple:
+    """(dit, vae, image_encoder) with abstract (shape-only) parameters: no compute, no memory."""
+    return (nnx.eval_shape(lambda: WorldDiT(config, rngs=nnx.Rngs(0))),
+            nnx.eval_shape(lambda: CausalVideoVAE(config.vae, rngs=nnx.Rngs(0))),
+            nnx.eval_shape(lambda: ImageEncoder(config.image_encoder, rngs=nnx.Rngs(0))))
+
+
+def param_count(model: WorldModel) -> dict[str, int]:
+    return {name: sum(math.prod(v.shape) for v in jax.tree.leaves(p)) for name, p in zip(COMPONENTS, model.params)}
+
+
+__all__ = ["WorldModel", "WorldState", "Programs", "abstract_modules", "encoder_receptive_field",
+           "steady_cond_index", "frames_to_model", "frames_to_uint8", "param_count", "COMPONENTS"]
