@@ -334,13 +334,16 @@ class WorldModelConfig:
     def tiny(cls, **override) -> "WorldModelConfig":
         """CPU default: 64x64 frames -> 8x8x16 latents, patch 2 -> 16 tokens/player/frame, d=256, 8 layers.
         stack.md: d256/L8 with 16 tokens trains at ~1.4 s/step (B=8, 8 latent frames, P=2) on 2 cores,
-        ~2x faster than patch 1 (64 tokens) at the same width, which leaves room for stage 4."""
+        ~2x faster than patch 1 (64 tokens) at the same width, which leaves room for stage 4.
+        VAE: the decoder dominates an env step (benchmarks/model_step.py). Measured decode_step of one
+        latent frame for 2 players (8 frames of 64x64): base 32 / mult (1,2,2,4) 16.8 GFLOP, 130 ms;
+        base 16 / mult (1,2,4,4) 5.3 GFLOP, 47 ms (2.5 M params) -- chosen; base 12 / (1,2,4,8) 3.4 GFLOP."""
         kw = dict(
             name="tiny", frame_height=64, frame_width=64,
             dit=DiTConfig(dim=256, num_layers=8, num_heads=4, ffn_dim=1024, window=6),
             action=ActionConfig(keyboard_embed_dim=64, mouse_hidden_dim=256, keyboard_hidden_dim=256, num_heads=4,
                                 rope_dims=(8, 28, 28), num_action_blocks=4),
-            vae=VAEConfig(base_dim=32, z_dim=16, dim_mult=(1, 2, 2, 4), num_res_blocks=1,
+            vae=VAEConfig(base_dim=16, z_dim=16, dim_mult=(1, 2, 4, 4), num_res_blocks=1,
                           temporal_downsample=(False, True, True), middle_attention=False),
             image_encoder=ImageEncoderConfig(image_size=64, patch_size=8, width=128, num_layers=2, num_heads=4,
                                              blocks_applied=2, proj_dim=0),
