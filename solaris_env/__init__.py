@@ -9,4 +9,8 @@ def __getattr__(name):
         from solaris_env.real_env import RealParallelEnv
 
         return RealParallelEnv
+    if name in ("DreamParallelEnv", "parallel_env"):
+        from solaris_env import dream_env
+
+        return getattr(dream_env, name)
     raise AttributeError(f"module 'solaris_env' has no attribute {name!r}")
