@@ -1,0 +1,70 @@
+"""Flow-matching objective of the bidirectional and causal stages (model-spec §6.1).
+
+    x_sigma = (1 - sigma) * x0 + sigma * eps,   sigma = t / 1000,   target v = eps - x0,
+    loss = mean over every element of (v_theta - (eps - x0))^2, in f32.
+
+Timesteps are integers ``t ~ randint(0, 1001)`` (0..1000 inclusive), no shift, no weighting; the DiT
+receives ``t`` itself. Two noise types:
+
+- ``standard`` (stages 1-2): one t per sample, shared by all players and latent frames;
+- ``diffusion_forcing`` (stage 3): an independent t per (sample, player, latent frame).
+
+The stage is chosen by the DiT entry point passed in (``dit.forward_bidirectional`` or
+``dit.forward_causal``), never by a flag here: these functions know nothing about masks.
+Shapes are the DiT's stream layout (``dit.py``): x0 (B, P, F, h, w, C), t (B, P, F).
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import jax
+import jax.numpy as jnp
+
+NUM_TRAIN_TIMESTEPS = 1000  # t in 0..1000, sigma = t / 1000 (model-spec §6.1; SamplerConfig.num_train_timesteps)
+NOISE_TYPES = ("standard", "diffusion_forcing")
+
+# dit_forward(x, t, cond, context, mouse, keyboard) -> v, shaped like x
+DiTForward = Callable[[jax.Array, jax.Array, jax.Array, jax.Array, jax.Array, jax.Array], jax.Array]
+
+
+def sample_timesteps(key: jax.Array, shape_BPF: tuple[int, int, int], noise_type: str) -> jax.Array:
+    """Integer timesteps (B, P, F) int32 in [0, NUM_TRAIN_TIMESTEPS].
+
+    ``standard`` draws one t per sample and broadcasts it over players and frames;
+    ``diffusion_forcing`` draws every (sample, player, frame) independently.
+    """
+    if noise_type not in NOISE_TYPES:
+        raise ValueError(f"noise_type must be one of {NOISE_TYPES}, got {noise_type!r}")
+    if len(shape_BPF) != 3:
+        raise ValueError(f"shape_BPF must be (B, P, F), got {shape_BPF}")
+    b, p, f = shape_BPF
+    draw_shape = (b, 1, 1) if noise_type == "standard" else (b, p, f)
+    t = jax.random.randint(key, draw_shape, 0, NUM_TRAIN_TIMESTEPS + 1, dtype=jnp.int32)
+    return jnp.broadcast_to(t, (b, p, f))
+
+
+def noisy_latents(x0_BPFhwC: jax.Array, noise_BPFhwC: jax.Array, t_BPF: jax.Array) -> jax.Array:
+    """x_sigma = (1 - sigma) x0 + sigma eps with sigma = t / 1000 per (sample, player, frame), f32."""
+    sigma = (t_BPF.astype(jnp.float32) / NUM_TRAIN_TIMESTEPS)[..., None, None, None]  # (B, P, F, 1, 1, 1)
+    return (1.0 - sigma) * x0_BPFhwC.astype(jnp.float32) + sigma * noise_BPFhwC.astype(jnp.float32)
+
+
+def flow_matching_loss(dit_forward: DiTForward, x0: jax.Array, cond: jax.Array, context: jax.Array,
+                       mouse: jax.Array, keyboard: jax.Array, t: jax.Array, noise: jax.Array) -> jax.Array:
+    """Scalar f32 MSE between the predicted velocity and ``noise - x0``.
+
+    Args:
+        dit_forward: a DiT entry point (bound method), e.g. ``dit.forward_causal``.
+        x0: clean latents (B, P, F, h, w, C).
+        cond, context, mouse, keyboard: the DiT's conditioning inputs (shapes in ``dit.py``).
+        t: integer timesteps (B, P, F) on the 0..1000 scale (``sample_timesteps``).
+        noise: standard normal, shaped like ``x0``.
+    """
+    if noise.shape != x0.shape or t.shape != x0.shape[:3]:
+        raise ValueError(f"noise {noise.shape} must equal x0 {x0.shape} and t {t.shape} must be x0's (B, P, F) "
+                         f"{x0.shape[:3]}")
+    x_sigma = noisy_latents(x0, noise, t)
+    v_pred = dit_forward(x_sigma, t.astype(jnp.float32), cond, context, mouse, keyboard)
+    v_target = noise.astype(jnp.float32) - x0.astype(jnp.float32)
+    return jnp.mean(jnp.square(v_pred.astype(jnp.float32) - v_target))
