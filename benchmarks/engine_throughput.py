@@ -24,13 +24,14 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import statistics
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
+
+from benchmarks.machine import machine_info
 
 from solaris_env.engine import cli
 from solaris_env.engine.bots.runner import EpisodeConfig, run_episode
@@ -41,16 +42,6 @@ SCENE = dict(seed=0, instance=0, episode=0, episode_type="walkLook")
 WORLDS = ("flat", "normal")
 SWEEP_VIEWS = (1, 16, 64, 256)
 TOTAL_VIEWS = 512  # the same views (256 ticks x 2 players) are rendered for every batch size
-
-
-def cpu_model() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
 
 
 def scene(world: str):
@@ -135,10 +126,7 @@ def main() -> None:
         "collect_cold_realtime_factor_64": round(col["cold_realtime_factor"], 2),
         "by_world": {"64": r64["by_world"], "128": r128["by_world"]},
         "collect": col,
-        "machine": {"cpu": cpu_model(), "cores": os.cpu_count(), "python": platform.python_version(),
-                    "jax": jax.__version__, "jax_backend": jax.default_backend(), "platform": platform.platform(),
-                    # other processes share the CPU: a load average above the core count means noisy numbers
-                    "load_avg_1m_before_after": [round(load_before[0], 2), round(os.getloadavg()[0], 2)]},
+        "machine": machine_info(load_before),
         "config": {"scene": SCENE, "worlds": list(WORLDS), "batch_views_64": r64["batch_views"],
                    "batch_views_128": r128["batch_views"], "views_timed": TOTAL_VIEWS, "repeats": repeats, "statistic": "median over repeats",
                    "headline": "harmonic mean over worlds (equal flat/normal split)",

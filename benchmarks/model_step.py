@@ -32,25 +32,16 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import statistics
 import time
 from pathlib import Path
 
 import numpy as np
 
+from benchmarks.machine import machine_info
+
 RESULTS = Path(__file__).parent / "results" / "model_step.json"
 BATCHES = (1, 4, 16)
-
-
-def cpu_model() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
 
 
 def flops_of(jitted, *args) -> float:
@@ -242,10 +233,7 @@ def main() -> None:
                   "dit_passes_per_step": len(cfg.sampler.ar_timesteps) + 1,
                   "dit": {"dim": cfg.dit.dim, "layers": cfg.dit.num_layers, "tokens_per_frame": cfg.tokens_per_frame,
                           "window": cfg.dit.window}},
-        "machine": {"cpu": cpu_model(), "cores": os.cpu_count(), "python": platform.python_version(),
-                    "jax": jax.__version__, "jax_backend": jax.default_backend(), "platform": platform.platform(),
-                    # other processes share the CPU: a load average above the core count means noisy numbers
-                    "load_avg_1m_before_after": [round(load_before[0], 2), round(os.getloadavg()[0], 2)]},
+        "machine": machine_info(load_before),
         "config": {"timed_steps": steps, "part_repeats": repeats, "statistic": "median"},
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)

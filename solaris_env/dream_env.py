@@ -21,6 +21,7 @@ from gymnasium import spaces as gym_spaces
 from gymnasium.utils import seeding
 from pettingzoo import ParallelEnv
 
+from solaris_env.env_render import SideBySideRender
 from solaris_env.engine.bots.runner import PLAYER_NAMES
 from solaris_env.spaces import BINARY_KEYS, MODEL_INDEX, KEYBOARD_DIM, env_action_to_model_vector, make_action_space
 
@@ -46,7 +47,7 @@ def expand_action(vec_25: np.ndarray, k: int) -> np.ndarray:
     return ticks_k25
 
 
-class DreamParallelEnv(ParallelEnv):
+class DreamParallelEnv(SideBySideRender, ParallelEnv):
     """The world model with every player an agent.
 
     No shipped default checkpoint exists yet: without ``checkpoint`` the env uses a preset with
@@ -190,24 +191,6 @@ class DreamParallelEnv(ParallelEnv):
     # -- rendering --------------------------------------------------------------------------------
     def _observations(self) -> dict[str, np.ndarray]:
         return {a: self._frames[i] for i, a in enumerate(self.agents)}
-
-    def render(self) -> np.ndarray | None:
-        if self.render_mode is None or self._frames is None:
-            return None
-        sheet = np.concatenate(list(self._frames), axis=1)  # (H, P*W, 3)
-        if self.render_mode == "human":
-            import cv2
-
-            cv2.imshow(self.metadata["name"], cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR))
-            cv2.waitKey(1)
-            return None
-        return sheet
-
-    def close(self) -> None:
-        if self.render_mode == "human":
-            import cv2
-
-            cv2.destroyAllWindows()
 
 
 def _build_model(checkpoint, preset: str | None, num_players: int | None, seed_model: int):

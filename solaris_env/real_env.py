@@ -15,6 +15,7 @@ from gymnasium import spaces as gym_spaces
 from gymnasium.utils import seeding
 from pettingzoo import ParallelEnv
 
+from solaris_env.env_render import SideBySideRender
 from solaris_env.engine.bots.runner import PLAYER_NAMES, make_players, spawn_positions
 from solaris_env.engine.game import Game
 from solaris_env.engine.trace import Trace
@@ -32,7 +33,7 @@ def _renderer(height: int, width: int, view_distance: float, hud: bool):
     return Renderer(RenderConfig(height=height, width=width, view_distance=view_distance, hud=hud))
 
 
-class RealParallelEnv(ParallelEnv):
+class RealParallelEnv(SideBySideRender, ParallelEnv):
     """The voxel engine with every player an agent.
 
     Args:
@@ -156,21 +157,3 @@ class RealParallelEnv(ParallelEnv):
             info["action_record"] = event.record
             info["placed"], info["mined"] = event.placed, event.mined
         return info
-
-    def render(self) -> np.ndarray | None:
-        if self.render_mode is None or self._frames is None:
-            return None
-        sheet = np.concatenate(list(self._frames), axis=1)  # (H, P*W, 3)
-        if self.render_mode == "human":
-            import cv2
-
-            cv2.imshow(self.metadata["name"], cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR))
-            cv2.waitKey(1)
-            return None
-        return sheet
-
-    def close(self) -> None:
-        if self.render_mode == "human":
-            import cv2
-
-            cv2.destroyAllWindows()
