@@ -21,7 +21,7 @@ from gymnasium import spaces as gym_spaces
 from gymnasium.utils import seeding
 from pettingzoo import ParallelEnv
 
-from solaris_env.env_render import SideBySideRender
+from solaris_env.env_common import PlayerViewsEnv
 from solaris_env.engine.bots.runner import PLAYER_NAMES
 from solaris_env.spaces import BINARY_KEYS, MODEL_INDEX, KEYBOARD_DIM, env_action_to_model_vector, make_action_space
 
@@ -47,7 +47,7 @@ def expand_action(vec_25: np.ndarray, k: int) -> np.ndarray:
     return ticks_k25
 
 
-class DreamParallelEnv(SideBySideRender, ParallelEnv):
+class DreamParallelEnv(PlayerViewsEnv, ParallelEnv):
     """The world model with every player an agent.
 
     No shipped default checkpoint exists yet: without ``checkpoint`` the env uses a preset with
@@ -100,12 +100,6 @@ class DreamParallelEnv(SideBySideRender, ParallelEnv):
         self._frames: np.ndarray | None = None  # (P, H, W, 3): the last frame of each player
         self._start_env = None  # RealParallelEnv that renders default start frames, built on first use
         self._steps = 0
-
-    def observation_space(self, agent: str) -> gym_spaces.Box:
-        return self._observation_spaces[agent]
-
-    def action_space(self, agent: str) -> gym_spaces.Dict:
-        return self._action_spaces[agent]
 
     # -- reset / step -----------------------------------------------------------------------------
     def reset(self, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:

@@ -15,7 +15,7 @@ from gymnasium import spaces as gym_spaces
 from gymnasium.utils import seeding
 from pettingzoo import ParallelEnv
 
-from solaris_env.env_render import SideBySideRender
+from solaris_env.env_common import PlayerViewsEnv
 from solaris_env.engine.bots.runner import PLAYER_NAMES, make_players, spawn_positions
 from solaris_env.engine.game import Game
 from solaris_env.engine.trace import Trace
@@ -33,7 +33,7 @@ def _renderer(height: int, width: int, view_distance: float, hud: bool):
     return Renderer(RenderConfig(height=height, width=width, view_distance=view_distance, hud=hud))
 
 
-class RealParallelEnv(SideBySideRender, ParallelEnv):
+class RealParallelEnv(PlayerViewsEnv, ParallelEnv):
     """The voxel engine with every player an agent.
 
     Args:
@@ -78,12 +78,6 @@ class RealParallelEnv(SideBySideRender, ParallelEnv):
         self.game: Game | None = None
         self._frames: np.ndarray | None = None  # (P, H, W, 3) of the current state
         self._steps = 0
-
-    def observation_space(self, agent: str) -> gym_spaces.Box:
-        return self._observation_spaces[agent]
-
-    def action_space(self, agent: str) -> gym_spaces.Dict:
-        return self._action_spaces[agent]
 
     # -- reset / step -----------------------------------------------------------------------------
     def reset(self, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
