@@ -284,8 +284,22 @@ def _segment_length(num_frames: int, starts: Sequence[int], num_records: Sequenc
     return min(num_frames, *(n - 1 - s for s, n in zip(starts, num_records)))
 
 
-class _SkipLog:
-    """``skipped`` counter + logging shared by the datasets."""
+class _EpisodeTable:
+    """What the datasets share: the ``skipped`` counter with logging, and the episode table
+    ``self._episodes`` (one entry per episode id, None for an invalid episode)."""
+
+    _episodes: list
+
+    @property
+    def num_episodes(self) -> int:
+        return len(self._episodes)
+
+    @property
+    def valid_ids(self) -> list[int]:
+        return [i for i, ep in enumerate(self._episodes) if ep is not None]
+
+    def is_valid(self, episode_id: int) -> bool:
+        return 0 <= episode_id < self.num_episodes and self._episodes[episode_id] is not None
 
     def _init_skips(self) -> None:
         self.skipped: Counter[str] = Counter()
@@ -295,7 +309,7 @@ class _SkipLog:
         logger.warning("skipping %s: %s", what, err)
 
 
-class DuetDataset(_SkipLog):
+class DuetDataset(_EpisodeTable):
     """Two-player episodes in the Duet layout (model-spec §8.2), validated once at construction.
 
     Args:
@@ -351,18 +365,7 @@ class DuetDataset(_SkipLog):
             self._skip(f"episode {len(self._episodes)} ({alpha_mp4.name})", err)
             self._episodes.append(None)
 
-    # -- episode table ----------------------------------------------------------------------
-
-    @property
-    def num_episodes(self) -> int:
-        return len(self._episodes)
-
-    @property
-    def valid_ids(self) -> list[int]:
-        return [i for i, ep in enumerate(self._episodes) if ep is not None]
-
-    def is_valid(self, episode_id: int) -> bool:
-        return 0 <= episode_id < self.num_episodes and self._episodes[episode_id] is not None
+    # -- episode access -----------------------------------------------------------------------
 
     def recordings(self, episode_id: int) -> tuple[BotRecording, BotRecording]:
         """Both bots' recordings; raises EpisodeError for an invalid episode."""
@@ -440,7 +443,7 @@ class VPTEpisode:
         return len(self.act_T25)
 
 
-class VPTDataset(_SkipLog):
+class VPTDataset(_EpisodeTable):
     """Single-player episodes in the VPT layout (model-spec §8.3), segments with a player axis of 1.
 
     ``{data_dir}/vpt/{split}/episodes_info.json`` = ``{"num_episodes", "episodes": [{"video_path",
@@ -504,16 +507,6 @@ class VPTDataset(_SkipLog):
             act_T25 = vpt_camera_to_mineflayer(act_T25)
         return VPTEpisode(video, actions, camera_linear(act_T25))
 
-    @property
-    def num_episodes(self) -> int:
-        return len(self._episodes)
-
-    @property
-    def valid_ids(self) -> list[int]:
-        return [i for i, ep in enumerate(self._episodes) if ep is not None]
-
-    def is_valid(self, episode_id: int) -> bool:
-        return 0 <= episode_id < self.num_episodes and self._episodes[episode_id] is not None
 
     def episode(self, episode_id: int) -> VPTEpisode:
         if not 0 <= episode_id < self.num_episodes:

@@ -41,6 +41,7 @@ import numpy as np
 from flax import nnx
 
 from solaris_env.world_model import config as config_lib
+from solaris_env.world_model import official
 from solaris_env.world_model.config import WorldModelConfig
 
 FORMAT = "solaris_env.world_model"
@@ -104,19 +105,7 @@ def _spec(a) -> tuple[tuple[int, ...], str]:
 def check_tree(expected: dict[str, tuple], found: dict[str, tuple], where: str, check_dtype: bool = True) -> None:
     """Compare {key: (shape, dtype)} maps; raise ONE ValueError listing missing, unexpected and
     mis-shaped (or, with ``check_dtype``, mis-typed) keys."""
-    missing = sorted(set(expected) - set(found))
-    unexpected = sorted(set(found) - set(expected))
-    wrong = []
-    for key in sorted(set(expected) & set(found)):
-        (want_shape, want_dtype), (got_shape, got_dtype) = expected[key], found[key]
-        if tuple(want_shape) != tuple(got_shape) or (check_dtype and want_dtype != got_dtype):
-            wrong.append(f"{key}: expected {tuple(want_shape)} {want_dtype}, found {tuple(got_shape)} {got_dtype}")
-    if missing or unexpected or wrong:
-        lines = [f"checkpoint {where} does not match the model:"]
-        lines += [f"  missing keys ({len(missing)}): {missing}"] if missing else []
-        lines += [f"  unexpected keys ({len(unexpected)}): {unexpected}"] if unexpected else []
-        lines += [f"  mis-shaped keys ({len(wrong)}):"] + [f"    {w}" for w in wrong] if wrong else []
-        raise ValueError("\n".join(lines))
+    official.check_tree(expected, found, f"checkpoint {where}", check_dtype=check_dtype, against="the model")
 
 
 def _abstract(config: WorldModelConfig) -> dict[str, tuple]:
@@ -218,8 +207,6 @@ def load_official(path, config: WorldModelConfig | None = None) -> tuple[WorldMo
     middle attention, CLIP ``proj_dim``). The three key trees are all checked before anything is
     restored and every difference is reported in one ValueError (a section per file).
     """
-    from solaris_env.world_model import official
-
     path = pathlib.Path(path)
     config = config_lib.WorldModelConfig.solaris() if config is None else config
     absent = [f for f in OFFICIAL_FILES.values() if not (path / f).is_dir()]

@@ -240,7 +240,7 @@ def _spec(a) -> Spec:
 
 
 def check_tree(expected: dict[str, Spec], found: dict[str, Spec], where: str, *, check_dtype: bool = False,
-               optional: tuple[str, ...] = ()) -> None:
+               optional: tuple[str, ...] = (), against: str = "the official layout for this config") -> None:
     """Raise ONE ValueError listing missing, unexpected and mis-shaped (with ``check_dtype`` also mis-typed)
     keys of ``found`` against ``expected``; keys starting with an ``optional`` prefix are ignored."""
     found = {k: v for k, v in found.items() if not k.startswith(optional)} if optional else found
@@ -249,7 +249,7 @@ def check_tree(expected: dict[str, Spec], found: dict[str, Spec], where: str, *,
              for k in sorted(set(expected) & set(found))
              if tuple(expected[k][0]) != tuple(found[k][0]) or (check_dtype and expected[k][1] != found[k][1])]
     if missing or unexpected or wrong:
-        lines = [f"{where} does not match the official layout for this config:"]
+        lines = [f"{where} does not match {against}:"]
         lines += [f"  missing keys ({len(missing)}): {missing}"] if missing else []
         lines += [f"  unexpected keys ({len(unexpected)}): {unexpected}"] if unexpected else []
         lines += ([f"  mis-shaped keys ({len(wrong)}):"] + [f"    {w}" for w in wrong]) if wrong else []
