@@ -111,7 +111,6 @@ def main() -> None:
     args = parser.parse_args()
     repeats, episodes = (1, 2) if args.quick else (3, 4)
 
-    import jax
 
     from solaris_env.engine.bots import registry
 

@@ -172,7 +172,6 @@ def test_attack_hits_the_other_player_with_knockback_and_cooldown():
 def test_determinism_same_actions_same_state():
     def rollout():
         g = make_game((0.5, FEET_Y, 0.5), (3.5, FEET_Y, 0.5))
-        rng = np.random.default_rng(0)
         from solaris_env.spaces import make_action_space
         space = make_action_space(seed=1)
         for _ in range(200):

@@ -42,7 +42,6 @@ def test_same_seed_and_actions_give_identical_frames():
         env = make()
         obs, _ = env.reset(seed=7)
         frames = [np.stack([obs[a] for a in env.possible_agents])]
-        rng = np.random.default_rng(0)
         for a in env.possible_agents:
             env.action_space(a).seed(11)
         for _ in range(60):

@@ -18,7 +18,7 @@ import numpy as np
 
 from solaris_env.engine import constants as C
 from solaris_env.engine.blocks import BREAK_TICKS, PLACEABLE, Block
-from solaris_env.engine.physics import Player, box_collides, look_vector, move_player
+from solaris_env.engine.physics import Player, look_vector, move_player
 from solaris_env.engine.world import World
 from solaris_env.spaces import minerl_camera_to_mineflayer, validate_action
 

@@ -410,7 +410,6 @@ def _avatar_pass(eye_B3, d, av, skins_flat):
         t_BP (inf where none), avatar index a_BP (-1 where none), rgb_BP3 (face-shaded skin colour).
     """
     B, P = d[0].shape
-    A = av["mask"].shape[1]
     G = TILE_RAYS
     tiles_per_view = -(-P // G)
     T = B * tiles_per_view

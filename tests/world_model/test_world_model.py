@@ -280,7 +280,7 @@ def _frame_noise(keys_B, shape, num_steps):
 def reference(model, rollout):
     cfg, ff = rollout["cfg"], rollout["ff"]
     num_frames = rollout["latents"].shape[2]
-    p, (h, w, _), k = model.num_players, model.frame_shape, model.frames_per_step
+    p, (h, w, _) = model.num_players, model.frame_shape
     dit, vae, encoder = model.modules()
     first = frames_to_model(jnp.asarray(ff)).reshape(B * p, h, w, 3)
     context = encoder(first).reshape(B, p, -1, cfg.context_width)

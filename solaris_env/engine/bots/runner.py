@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from solaris_env.engine import constants as C
-from solaris_env.engine.blocks import SOLID, Block, Item, item_name
+from solaris_env.engine.blocks import Block, Item, item_name
 from solaris_env.engine.bots import registry
 from solaris_env.engine.bots.controller import Barrier, Bot, EpisodeAbort
 from solaris_env.engine.game import Game
