@@ -1,20 +1,115 @@
-"""What the real and the dream env share: per-agent spaces built once, and all players' frames side by side."""
+"""What the real and the dream env share: per-agent spaces built once, input checks that name the agent and
+the key, the per-agent step outputs (tasks, terminations, truncation) and all players' frames side by side."""
 
 from __future__ import annotations
 
+import os
+from collections.abc import Mapping, Sequence
+from typing import Any
+
 import numpy as np
+
+RENDER_MODES = ("rgb_array", "human")
+
+
+# ---------------------------------------------------------------------------------------------
+# Checks
+# ---------------------------------------------------------------------------------------------
+
+
+def check_render_mode(render_mode: str | None) -> None:
+    """ValueError for an unknown mode; RuntimeError for ``"human"`` where no window can be opened."""
+    if render_mode is not None and render_mode not in RENDER_MODES:
+        raise ValueError(f"render_mode must be one of {list(RENDER_MODES)} or None, got {render_mode!r}")
+    if render_mode == "human":
+        reason = human_display_problem()
+        if reason:
+            raise RuntimeError(f"render_mode='human' cannot open a window: {reason}. Use render_mode='rgb_array' "
+                               "(or `solaris-env play`, which serves a local web page)")
+
+
+def human_display_problem() -> str | None:
+    """Why an OpenCV window cannot be shown here, or None when it can."""
+    if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+        return "no display (DISPLAY and WAYLAND_DISPLAY are unset)"
+    import cv2
+
+    info = cv2.getBuildInformation()
+    gui = next((line.split(":", 1)[1].strip() for line in info.splitlines() if line.strip().startswith("GUI:")), "")
+    if gui.upper() == "NONE":
+        return "this OpenCV build has no GUI support (opencv-python-headless); install opencv-python"
+    return None
+
+
+def check_options(options: Any) -> Mapping:
+    """``reset``'s options: None or a dict (unknown keys are ignored: PettingZoo's API test passes some)."""
+    if options is None:
+        return {}
+    if not isinstance(options, Mapping):
+        raise TypeError(f"options must be a dict or None, got {type(options).__name__}")
+    return options
+
+
+def check_agent_actions(actions: Any, agents: Sequence[str]) -> None:
+    """``actions`` must be a dict with exactly one entry per live agent (values are checked by the env)."""
+    if not isinstance(actions, Mapping):
+        raise TypeError(f"actions must be a dict keyed by agent {list(agents)}, got {type(actions).__name__}")
+    missing = [a for a in agents if a not in actions]
+    unknown = [a for a in actions if a not in agents]
+    if missing or unknown:
+        raise ValueError(f"actions must have exactly one entry per live agent {list(agents)}; "
+                         f"missing {missing}, unknown {unknown}")
+
+
+def check_agent_frames(frames: Any, agents: Sequence[str], shape: tuple[int, int, int],
+                       where: str = "options['frames']") -> np.ndarray:
+    """``{agent: (H, W, 3) uint8}`` for every agent -> (P, H, W, 3) uint8 in agent order.
+
+    Raises ValueError naming the agent, the expected shape and what was given.
+    """
+    if not isinstance(frames, Mapping):
+        raise TypeError(f"{where} must be a dict {{agent: {shape} uint8 array}}, got {type(frames).__name__}")
+    missing = [a for a in agents if a not in frames]
+    unknown = [a for a in frames if a not in agents]
+    if missing or unknown:
+        raise ValueError(f"{where} must have one frame per agent {list(agents)}; missing {missing}, unknown {unknown}")
+    for a in agents:
+        frame = frames[a]
+        dtype, got = getattr(frame, "dtype", None), getattr(frame, "shape", None)
+        if dtype is None or np.dtype(dtype) != np.uint8 or tuple(got) != tuple(shape):
+            raise ValueError(f"{where}[{a!r}]: expected a uint8 array of shape {tuple(shape)}, "
+                             f"got dtype {dtype} shape {got}")
+    return np.stack([np.asarray(frames[a]) for a in agents])
+
+
+def side_by_side(frames_PHW3: np.ndarray) -> np.ndarray:
+    """(P, H, W, 3) -> (H, P*W, 3): every player's view, left to right in agent order."""
+    return np.concatenate(list(frames_PHW3), axis=1)
+
+
+# ---------------------------------------------------------------------------------------------
+# The mixin
+# ---------------------------------------------------------------------------------------------
 
 
 class PlayerViewsEnv:
     """Mixin for ParallelEnvs with one first-person view per player.
 
     The env builds ``self._observation_spaces`` / ``self._action_spaces`` (agent -> space) once in
-    ``__init__`` and keeps the players' current frames in ``self._frames`` (P, H, W, 3).
-    ``render_mode="rgb_array"`` returns the (H, P*W, 3) sheet; ``"human"`` shows it in an OpenCV window.
+    ``__init__``, keeps the players' current frames in ``self._frames`` (P, H, W, 3), all frames of the last step in
+    ``self._step_frames`` (P, k, H, W, 3), and the agents that
+    are still playing in ``self.agents``. ``render_mode="rgb_array"`` returns the (H, P*W, 3) sheet;
+    ``"human"`` shows it in an OpenCV window.
+
+    Terminations: an agent whose task says it terminated leaves ``agents``; its player stays in the world
+    and is sent no-op actions until the episode ends (truncation at ``max_steps`` or every agent done).
     """
 
     render_mode: str | None
+    possible_agents: list[str]
+    agents: list[str]
     _frames: np.ndarray | None
+    _step_frames: np.ndarray | None
     _observation_spaces: dict
     _action_spaces: dict
 
@@ -27,7 +122,7 @@ class PlayerViewsEnv:
     def render(self) -> np.ndarray | None:
         if self.render_mode is None or self._frames is None:
             return None
-        sheet = np.concatenate(list(self._frames), axis=1)  # (H, P*W, 3)
+        sheet = side_by_side(self._frames)  # (H, P*W, 3)
         if self.render_mode == "human":
             import cv2
 
@@ -41,3 +136,30 @@ class PlayerViewsEnv:
             import cv2
 
             cv2.destroyAllWindows()
+
+    def step_frames(self) -> np.ndarray:
+        """uint8 (P, k, H, W, 3): every player's frames of the last step (k = 1 after reset; all players,
+        including those whose agent has ended). Recorders use it."""
+        if self._step_frames is None:
+            raise RuntimeError("step_frames() called before reset(); call reset() first")
+        return self._step_frames
+
+    # -- per-agent outputs ------------------------------------------------------------------------
+    def _observations(self) -> dict[str, np.ndarray]:
+        return {a: self._frames[self.possible_agents.index(a)] for a in self.agents}
+
+    def _step_outputs(self, rewards_P: np.ndarray, terminations_P: np.ndarray, truncated: bool,
+                      infos_P: list[dict]) -> tuple[dict, dict, dict, dict, dict]:
+        """The five per-agent dicts of ``step`` for the agents live before it; ended agents then leave."""
+        index = {a: self.possible_agents.index(a) for a in self.agents}
+        obs = self._observations()
+        rewards = {a: float(rewards_P[i]) for a, i in index.items()}
+        terminations = {a: bool(terminations_P[i]) for a, i in index.items()}
+        truncations = {a: truncated and not terminations[a] for a in index}
+        infos = {a: infos_P[i] for a, i in index.items()}
+        self.agents = [a for a in self.agents if not (terminations[a] or truncations[a])]
+        return obs, rewards, terminations, truncations, infos
+
+    def _live_mask(self) -> np.ndarray:
+        """(P,) bool: which players are still agents."""
+        return np.array([a in self.agents for a in self.possible_agents])

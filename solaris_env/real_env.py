@@ -3,26 +3,85 @@
 Same agents, spaces and step contract as the dream env: each agent's action is the MineRL-style dict of
 ``solaris_env.spaces`` and each observation is that player's first-person frame, ``uint8`` (H, W, 3). The
 env only translates; game logic lives in ``solaris_env.engine``.
+
+An :class:`EngineState` is a snapshot of the game (the voxel world and every player's full state: pose,
+velocity, inventory, digging progress, tick). ``RealParallelEnv.engine_state()`` takes one and
+``reset(options={"engine_state": s})`` on the real or the dream env starts there, so both can be run from
+the same state (the dream env renders the state's views with the engine and starts the model from them).
 """
 
 from __future__ import annotations
 
+import copy
 import functools
-from typing import Any
+from dataclasses import dataclass
+from typing import Any, ClassVar
 
 import numpy as np
 from gymnasium import spaces as gym_spaces
 from gymnasium.utils import seeding
 from pettingzoo import ParallelEnv
 
-from solaris_env.env_common import PlayerViewsEnv
 from solaris_env.engine.bots.runner import PLAYER_NAMES, make_players, spawn_positions
 from solaris_env.engine.game import Game
 from solaris_env.engine.trace import Trace
 from solaris_env.engine.worldgen import FLAT_VARIANTS, WorldConfig, generate
-from solaris_env.spaces import make_action_space
+from solaris_env.env_common import (
+    PlayerViewsEnv,
+    check_agent_actions,
+    check_options,
+    check_render_mode,
+)
+from solaris_env.spaces import make_action_space, noop, validate_action
+from solaris_env.tasks import make_task
 
 WORLD_CHOICES = ("flat", "normal", "mixed")
+DEFAULT_VIEW_DISTANCE = 48.0  # blocks, as the recorded training data
+
+
+# ---------------------------------------------------------------------------------------------
+# Engine state and rendering
+# ---------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class EngineState:
+    """A snapshot of an engine game: the world and all players, independent of any frame size.
+
+    Holds a private deep copy; ``game()`` returns a fresh copy each call, so one snapshot can start any
+    number of episodes (real or dream) and is never changed by them.
+    """
+
+    _game: Game
+
+    @classmethod
+    def of(cls, game: Game) -> EngineState:
+        return cls(copy.deepcopy(game))
+
+    def game(self) -> Game:
+        return copy.deepcopy(self._game)
+
+    @property
+    def player_names(self) -> list[str]:
+        return [p.name for p in self._game.players]
+
+    @property
+    def num_players(self) -> int:
+        return len(self._game.players)
+
+    @property
+    def tick(self) -> int:
+        return self._game.tick
+
+
+def check_engine_state(state: Any, agents: list[str]) -> EngineState:
+    """``options["engine_state"]`` must be an EngineState whose players are exactly ``agents``."""
+    if not isinstance(state, EngineState):
+        raise TypeError(f"options['engine_state'] must be an EngineState (RealParallelEnv.engine_state()), "
+                         f"got {type(state).__name__}")
+    if state.player_names != list(agents):
+        raise ValueError(f"options['engine_state'] has players {state.player_names}; this env has {list(agents)}")
+    return state
 
 
 @functools.lru_cache(maxsize=8)
@@ -33,26 +92,59 @@ def _renderer(height: int, width: int, view_distance: float, hud: bool):
     return Renderer(RenderConfig(height=height, width=width, view_distance=view_distance, hud=hud))
 
 
+def render_game_views(game: Game, height: int, width: int, view_distance: float = DEFAULT_VIEW_DISTANCE,
+                      hud: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """Every player's first-person view of the game now.
+
+    Returns:
+        rgb_PHW3: uint8 (P, H, W, 3); avatar_id_PHW: per pixel, the index of the player drawn there (-1: none).
+    """
+    from solaris_env.engine.capture import views_from_trace
+
+    snap = Trace([p.name for p in game.players], [p.skin for p in game.players], game.world.blocks_XYZ,
+                 game.world.origin, records=[])
+    snap.append_state(game)
+    snap.finish()
+    views = views_from_trace(snap, 0, 1, np.zeros(1, np.int32))
+    rgb, avatar_id = _renderer(height, width, view_distance, hud).render(game.world.blocks_XYZ[None],
+                                                                         game.world.origin, views)
+    return np.asarray(rgb), np.asarray(avatar_id)
+
+
+# ---------------------------------------------------------------------------------------------
+# The env
+# ---------------------------------------------------------------------------------------------
+
+
 class RealParallelEnv(PlayerViewsEnv, ParallelEnv):
-    """The voxel engine with every player an agent.
+    """The voxel engine with every player an agent. One env step is one 20 Hz engine tick.
 
     Args:
-        num_players: number of players (2..8); agents are named Alpha, Bravo, Charlie, ...
+        num_players: number of players (1..8); agents are named Alpha, Bravo, Charlie, ...
         world: ``"flat"``, ``"normal"`` or ``"mixed"`` (flat or normal drawn at each reset).
         resolution: frame size, an int (square) or (height, width); at least 36 for SB3 CNN policies.
         max_steps: episode length; ``truncations`` become True at this step and the agents leave.
-        render_mode: None, ``"rgb_array"`` (all views side by side) or ``"human"`` (an OpenCV window).
+        task: rewards and terminations (``solaris_env.tasks``): None (zero reward), a task name, a Task
+            class or instance. Tasks here also get the engine's ground truth (the per-player infos).
+        render_mode: None, ``"rgb_array"`` (all views side by side) or ``"human"`` (an OpenCV window; needs
+            a display and OpenCV with GUI support, else a RuntimeError at construction).
         spawn_distance: (min, max) blocks between the first two players at reset.
         view_distance: render distance in blocks (fog ends there).
         hud: draw the hotbar and crosshair.
+
+    ``reset(seed, options)`` options: ``{"world": "flat" | "normal"}`` overrides the world kind for the
+    episode; ``{"engine_state": EngineState}`` starts from a snapshot instead of a fresh world. Other keys
+    are ignored. ``reset()`` without a seed continues the generator of the last seeded reset (Gymnasium's
+    rule), so a seeded run of episodes is reproducible.
     """
 
-    metadata = {"name": "solaris_real_v0", "render_modes": ["rgb_array", "human"], "render_fps": 20,
+    metadata: ClassVar[dict] = {"name": "solaris_real_v0", "render_modes": ["rgb_array", "human"], "render_fps": 20,
                 "is_parallelizable": True}
 
     def __init__(self, num_players: int = 2, world: str = "flat", resolution: int | tuple[int, int] = 64,
                  max_steps: int = 1000, render_mode: str | None = None,
-                 spawn_distance: tuple[float, float] = (6.0, 10.0), view_distance: float = 48.0, hud: bool = True):
+                 spawn_distance: tuple[float, float] = (6.0, 10.0), view_distance: float = DEFAULT_VIEW_DISTANCE,
+                 hud: bool = True, task=None):
         if not 1 <= num_players <= len(PLAYER_NAMES):
             raise ValueError(f"num_players must be in [1, {len(PLAYER_NAMES)}], got {num_players}")
         if world not in WORLD_CHOICES:
@@ -62,14 +154,14 @@ class RealParallelEnv(PlayerViewsEnv, ParallelEnv):
             raise ValueError(f"resolution must be at least 8x8, got {(h, w)}")
         if max_steps < 1:
             raise ValueError(f"max_steps must be >= 1, got {max_steps}")
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
+        check_render_mode(render_mode)
         if not 0 < spawn_distance[0] <= spawn_distance[1]:
             raise ValueError(f"spawn_distance must be (min, max) with 0 < min <= max, got {spawn_distance}")
         self.num_players, self.world_kind, self.max_steps = num_players, world, max_steps
         self.render_mode = render_mode
         self.height, self.width = h, w
         self.spawn_distance, self.view_distance, self.hud = spawn_distance, view_distance, hud
+        self.task = make_task(task)
         self.world_config = WorldConfig()
         self.possible_agents = list(PLAYER_NAMES[:num_players])
         self.agents: list[str] = []
@@ -77,17 +169,50 @@ class RealParallelEnv(PlayerViewsEnv, ParallelEnv):
         self._action_spaces = {a: make_action_space() for a in self.possible_agents}
         self.game: Game | None = None
         self._frames: np.ndarray | None = None  # (P, H, W, 3) of the current state
+        self._step_frames: np.ndarray | None = None  # (P, 1, H, W, 3): one tick per step
         self._steps = 0
+        self.np_random: np.random.Generator | None = None  # seeded by reset(seed)
 
     # -- reset / step -----------------------------------------------------------------------------
     def reset(self, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
-        """Build a fresh seeded world and spawn the players facing each other.
+        """Build a fresh seeded world and spawn the players facing each other, or start from
+        ``options["engine_state"]``."""
+        if seed is not None or self.np_random is None:  # no seed: continue the episode stream (Gymnasium rule)
+            self.np_random, _ = seeding.np_random(seed)
+        options = check_options(options)
+        if "engine_state" in options:
+            self.game = check_engine_state(options["engine_state"], self.possible_agents).game()
+        else:
+            self.game = self._new_game(options.get("world", self.world_kind))
+        self.agents = list(self.possible_agents)
+        self._steps = 0
+        self._frames = self._render_views()
+        infos = [self._info(i) for i in range(self.num_players)]
+        self.task.reset(self._frames, truth=infos)
+        return self._observations(), dict(zip(self.possible_agents, infos))
 
-        ``options``: ``{"world": "flat" | "normal"}`` overrides the world kind for this episode.
-        """
-        self.np_random, _ = seeding.np_random(seed)
-        options = options or {}
-        kind = options.get("world", self.world_kind)
+    def step(self, actions: dict[str, Any]) -> tuple[dict, dict, dict, dict, dict]:
+        if self.game is None or not self.agents:
+            raise RuntimeError("step() called before reset() or after the episode ended; call reset()")
+        check_agent_actions(actions, self.agents)
+        # players whose agent already terminated stand still
+        per_player = [validate_action(actions[a], agent=a) if a in self.agents else noop()
+                      for a in self.possible_agents]
+        events = self.game.step(per_player)
+        self._steps += 1
+        self._frames = self._render_views()
+        infos = [self._info(i, events[i]) for i in range(self.num_players)]
+        outcome = self.task.step(self._frames[:, None], per_player, truth=infos)
+        return self._step_outputs(outcome.rewards_P, outcome.terminations_P, self._steps >= self.max_steps, infos)
+
+    def engine_state(self) -> EngineState:
+        """A snapshot of the current game (see ``EngineState``); raises before the first reset."""
+        if self.game is None:
+            raise RuntimeError("engine_state() called before reset(); call reset() first")
+        return EngineState.of(self.game)
+
+    # -- internals --------------------------------------------------------------------------------
+    def _new_game(self, kind: str) -> Game:
         if kind == "mixed":
             kind = ("flat", "normal")[int(self.np_random.integers(2))]
         if kind not in ("flat", "normal"):
@@ -97,50 +222,12 @@ class RealParallelEnv(PlayerViewsEnv, ParallelEnv):
                          cfg=self.world_config)
         n = max(2, self.num_players)
         feet = spawn_positions(world, self.np_random, n, *self.spawn_distance, self.world_config)[: self.num_players]
-        self.game = Game(world, make_players(feet), world_age=6000)
-        self.agents = list(self.possible_agents)
-        self._steps = 0
-        self._frames = self._render_views()
-        return self._observations(), {a: self._info(i) for i, a in enumerate(self.agents)}
+        return Game(world, make_players(feet), world_age=6000)
 
-    def step(self, actions: dict[str, Any]) -> tuple[dict, dict, dict, dict, dict]:
-        if self.game is None or not self.agents:
-            raise RuntimeError("step() called before reset() or after the episode ended; call reset()")
-        missing = [a for a in self.agents if a not in actions]
-        unknown = [a for a in actions if a not in self.agents]
-        if missing or unknown:
-            raise ValueError(f"actions must have exactly one entry per live agent {self.agents}; "
-                             f"missing {missing}, unknown {unknown}")
-        events = self.game.step([actions[a] for a in self.agents])
-        self._steps += 1
-        self._frames = self._render_views()
-        truncated = self._steps >= self.max_steps
-        obs = self._observations()
-        rewards = {a: 0.0 for a in self.agents}
-        terminations = {a: False for a in self.agents}
-        truncations = {a: truncated for a in self.agents}
-        infos = {a: self._info(i, events[i]) for i, a in enumerate(self.agents)}
-        if truncated:
-            self.agents = []
-        return obs, rewards, terminations, truncations, infos
-
-    # -- rendering --------------------------------------------------------------------------------
     def _render_views(self) -> np.ndarray:
-        from solaris_env.engine.capture import views_from_trace
-
-        g = self.game
-        snap = Trace([p.name for p in g.players], [p.skin for p in g.players],
-                     g.world.blocks_XYZ, g.world.origin, records=[])
-        snap.append_state(g)
-        snap.finish()
-        views = views_from_trace(snap, 0, 1, np.zeros(1, np.int32))
-        rgb, avatar_id = _renderer(self.height, self.width, self.view_distance, self.hud).render(
-            g.world.blocks_XYZ[None], g.world.origin, views)
-        self._avatar_id = avatar_id
+        rgb, self._avatar_id = render_game_views(self.game, self.height, self.width, self.view_distance, self.hud)
+        self._step_frames = rgb[:, None]
         return rgb
-
-    def _observations(self) -> dict[str, np.ndarray]:
-        return {a: self._frames[i] for i, a in enumerate(self.agents)}
 
     def _info(self, i: int, event=None) -> dict:
         p = self.game.players[i]

@@ -9,7 +9,13 @@ from pettingzoo.test import parallel_api_test, parallel_seed_test
 import solaris_env
 from solaris_env import DreamParallelEnv, RealParallelEnv
 from solaris_env.dream_env import ONCE_KEYS, expand_action
-from solaris_env.spaces import (CAMERA_X_INDEX, CAMERA_Y_INDEX, MODEL_INDEX, env_action_to_model_vector, noop)
+from solaris_env.spaces import (
+    CAMERA_X_INDEX,
+    CAMERA_Y_INDEX,
+    MODEL_INDEX,
+    env_action_to_model_vector,
+    noop,
+)
 
 
 @pytest.fixture(scope="module")

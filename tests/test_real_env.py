@@ -24,7 +24,7 @@ def test_spaces_are_built_once_and_match_the_frames():
     assert env.possible_agents == ["Alpha", "Bravo"]
     assert env.observation_space("Alpha") is env.observation_space("Alpha")
     assert env.action_space("Bravo") is env.action_space("Bravo")
-    obs, infos = env.reset(seed=3)
+    obs, _ = env.reset(seed=3)
     for a in env.agents:
         assert env.observation_space(a).contains(obs[a])
     frame = env.render()
