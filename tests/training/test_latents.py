@@ -1,0 +1,95 @@
+"""The latent cache of the DiT stages (training/latents.py) against encoding clips directly, on a tiny
+real dataset (32x32, 2 engine episodes) and the ``test`` preset with ``cond_encoding="image"``."""
+
+import dataclasses
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from solaris_env.engine import cli
+from solaris_env.world_model.config import preset
+from solaris_env.world_model.world_model import WorldModel, frames_to_model
+from training import data as D
+from training.latents import latent_clips, make_prepare_latents, snap_start
+from training.step import prepare_batch
+
+F16_ATOL = 2e-2  # latents are stored in float16
+
+
+@pytest.fixture(scope="module")
+def root(tmp_path_factory):
+    out = tmp_path_factory.mktemp("data")
+    argv = ["collect", "--out", str(out), "--resolution", "32", "--seed", "5", "--episodes", "2", "--world", "flat",
+            "--types", "walkLook", "--test-fraction", "0"]
+    assert cli.main(argv) == 0
+    assert cli.main(["export-vpt", str(out), "--out", str(out)]) == 0
+    return out
+
+
+@pytest.fixture(scope="module")
+def cfg():
+    c = preset("test")
+    return c.replace(vae=dataclasses.replace(c.vae, cond_encoding="image"))
+
+
+@pytest.fixture(scope="module")
+def modules(cfg):
+    return WorldModel.from_config(cfg, seed=0).modules()
+
+
+@pytest.fixture(scope="module")
+def clips(root, cfg, modules, tmp_path_factory):
+    dataset = D.DuetDataset(root, "train", obs_size=(32, 32))
+    return latent_clips(dataset, cfg, modules[1], tmp_path_factory.mktemp("latents"), canonical_dir=root / "duet")
+
+
+def test_snap_start_puts_the_first_frame_on_the_anchor_grid():
+    assert [snap_start(s, 4) for s in range(-1, 9)] == [-1, -1, -1, -1, 3, 3, 3, 3, 7, 7]
+    assert all((snap_start(s, 4) + 1) % 4 == 0 and snap_start(s, 4) <= s for s in range(0, 50))
+
+
+def test_clip_from_frame_zero_equals_encoding_the_clip(clips, modules, cfg):
+    num_frames = 9
+    x0, first, act = clips.load(D.SegmentMP(0, 0, 0), num_frames)
+    # start 0 snaps to -1: frames [0, 9) of each bot, a no-op action in front
+    rec1, rec2 = clips.dataset.recordings(0)
+    video = np.stack([D.read_frames(r.video, 0, num_frames, (32, 32)) for r in (rec1, rec2)])  # (P, T, H, W, 3)
+    expected = np.asarray(modules[1].encode(frames_to_model(jnp.asarray(video))))
+    np.testing.assert_allclose(x0, expected, atol=F16_ATOL)
+    np.testing.assert_array_equal(first, video[:, 0])
+    assert act.shape == (num_frames, 2, 25)
+    np.testing.assert_array_equal(act[0], 0)  # the action before the recording is a no-op
+    np.testing.assert_array_equal(act[1:, 0], rec1.act_T25[: num_frames - 1])
+
+
+def test_anchored_clip_latent_zero_is_its_first_frame_alone(clips, modules):
+    x0, first, _ = clips.load(D.SegmentMP(0, 10, 10), 9)  # snaps to 7: first frame 8
+    rec1 = clips.dataset.recordings(0)[0]
+    frame8 = D.read_frames(rec1.video, 8, 9, (32, 32))
+    np.testing.assert_array_equal(first[0], frame8[0])
+    alone = np.asarray(modules[1].encode(frames_to_model(jnp.asarray(frame8[None]))))[0, 0]
+    np.testing.assert_allclose(x0[0, 0], alone, atol=F16_ATOL)
+
+
+def test_prepared_batch_matches_prepare_batch(clips, modules, cfg):
+    x0, first, act = clips.load(D.SegmentMP(0, 0, 0), 9)  # a clip from frame 0: exactly the clip's stream
+    assert len(clips.next_batch(D.MultiplayerSegmentSampler(clips.dataset, 9, seed=0), 2, 9)["x0"]) == 2
+    rec = clips.dataset.recordings(0)
+    obs = np.stack([D.read_frames(r.video, 0, 9, (32, 32)) for r in rec], axis=1)  # (T, P, H, W, 3)
+    got = make_prepare_latents(cfg, modules[1], modules[2])({"x0": x0[None], "first": first[None], "act": act[None]})
+    want = prepare_batch(modules[1], modules[2], jnp.asarray(obs[None]), jnp.asarray(act[None]), cfg)
+    for key in ("x0", "cond"):
+        np.testing.assert_allclose(got[key], want[key], atol=F16_ATOL, err_msg=key)
+    for key in ("context", "mouse", "keyboard"):
+        np.testing.assert_allclose(got[key], want[key], atol=1e-5, err_msg=key)
+
+
+def test_vpt_export_shares_the_duet_latents(root, cfg, modules, clips):
+    clips.build()
+    vpt = D.VPTDataset(root, "train", obs_size=(32, 32))
+    shared = latent_clips(vpt, cfg, modules[1], clips.cache.dir.parent, canonical_dir=root / "duet")
+    shared.build()
+    assert shared.cache.stats["misses"] == 0 and shared.cache.stats["hits"] == 2 * clips.dataset.num_episodes
+    x0, _, act = shared.load(D.SegmentSP(1, 20), 9)
+    assert x0.shape == (1, 3, 4, 4, cfg.latent_channels) and act.shape == (9, 1, 25)

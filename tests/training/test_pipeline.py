@@ -1,0 +1,119 @@
+"""``solaris-train`` end to end on the ``test`` preset: every stage runs from the previous one's model and
+writes its model, metrics and samples; a stage killed with SIGKILL resumes with the same next losses."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from solaris_env.engine import cli as engine_cli
+from training import cli
+from training.metrics import read_metrics
+from training.train import STAGES, model_dir
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory):
+    out = tmp_path_factory.mktemp("data")
+    argv = ["collect", "--out", str(out), "--resolution", "32", "--seed", "4", "--episodes", "4", "--world", "flat",
+            "--types", "walkLook", "--test-fraction", "0.25"]
+    assert engine_cli.main(argv) == 0
+    return out
+
+
+@pytest.fixture(scope="module")
+def run(data, tmp_path_factory):
+    """The VAE and stages 1-3 with the test preset (stage 4 has its own tests)."""
+    out = tmp_path_factory.mktemp("run")
+    for stage in ("vae", "sp", "mp-bidirectional", "mp-causal"):
+        assert cli.main([stage, "--preset", "test", "--data", str(data), "--out", str(out)]) == 0
+    return out
+
+
+def test_stages_chain_and_write_their_outputs(run):
+    cfg = json.loads((REPO / "training" / "configs" / "test.json").read_text())
+    for stage in ("vae", "sp", "mp-bidirectional", "mp-causal"):
+        assert (model_dir(run, stage) / "config.json").is_file(), stage
+        metrics = read_metrics(run / stage / "metrics.jsonl")
+        assert [m["step"] for m in metrics] == list(range(1, cfg[stage]["steps"] + 1)), stage
+        assert all(m["loss"] > 0 and m["stage"] == stage for m in metrics)
+    assert list((run / "vae" / "samples").glob("*.png"))
+    for stage in ("sp", "mp-bidirectional", "mp-causal"):
+        assert list((run / stage / "samples").glob("*.mp4")), stage
+    summary = json.loads((run / "vae" / "summary.json").read_text())
+    assert len(summary["latent_std"]) == 4 and all(s > 0 for s in summary["latent_std"])
+    assert set(STAGES) >= {"vae", "sp", "mp-bidirectional", "mp-causal", "self-forcing"}
+
+
+def test_sp_stage_keeps_the_player_embedding_at_zero_and_mp_learns_it(run):
+    import numpy as np
+    from flax import nnx
+
+    from solaris_env.world_model.world_model import WorldModel
+
+    sp_dit = WorldModel.load(model_dir(run, "sp")).modules()[0]
+    mp_dit = WorldModel.load(model_dir(run, "mp-bidirectional")).modules()[0]
+    assert WorldModel.load(model_dir(run, "sp")).config.num_players == 1
+    assert np.all(np.asarray(nnx.state(sp_dit)["player_embed"]["embedding"][...]) == 0)
+    assert np.any(np.asarray(nnx.state(mp_dit)["player_embed"]["embedding"][...]) != 0)
+
+
+def _stage_cmd(data, out, steps, config):
+    return [sys.executable, "-m", "training.cli", "mp-causal", "--preset", "test", "--config", str(config), "--data",
+            str(data), "--out", str(out), "--steps", str(steps)]
+
+
+@pytest.mark.slow
+def test_kill_9_then_resume_gives_the_same_losses(run, data, tmp_path):
+    """Copy the finished stages into a fresh run dir, start mp-causal, SIGKILL it after its first
+    checkpoint, resume, and compare every logged loss with an uninterrupted run."""
+    import shutil
+
+    killed, clean = tmp_path / "killed", tmp_path / "clean"
+    for out in (killed, clean):
+        out.mkdir()
+        shutil.copytree(run / "mp-bidirectional", out / "mp-bidirectional")
+        shutil.copytree(run / "latents", out / "latents")
+    config = json.loads((REPO / "training" / "configs" / "test.json").read_text())
+    config["mp-causal"].update(log_every=1, ckpt_every=2, sample_every=10**6)  # no sampling: only the losses matter
+    config_path = tmp_path / "config.json"
+    config_path.write_text(json.dumps(config))
+    # the three runs share compiled programs through JAX's cache; low XLA optimisation compiles faster
+    env = {**os.environ, "PYTHONPATH": str(REPO), "XLA_FLAGS": "--xla_backend_optimization_level=0",
+           "JAX_COMPILATION_CACHE_DIR": str(tmp_path / "jax_cache"), "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "0",
+           "JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES": "0"}
+    proc = subprocess.Popen(_stage_cmd(data, killed, 1000, config_path), cwd=REPO, env=env,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    ckpts = killed / "mp-causal" / "checkpoints"
+    deadline = time.time() + 240
+    while time.time() < deadline and not any(p.name.isdigit() for p in ckpts.glob("*")):
+        assert proc.poll() is None, "the run ended before its first checkpoint"
+        time.sleep(0.2)
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    done = max(int(p.name) for p in ckpts.glob("*") if p.name.isdigit())
+    target = done + 3
+    subprocess.run(_stage_cmd(data, killed, target, config_path), cwd=REPO, env=env, check=True, capture_output=True)
+    subprocess.run(_stage_cmd(data, clean, target, config_path), cwd=REPO, env=env, check=True, capture_output=True)
+    resumed = {m["step"]: m["loss"] for m in read_metrics(killed / "mp-causal" / "metrics.jsonl")}
+    uninterrupted = {m["step"]: m["loss"] for m in read_metrics(clean / "mp-causal" / "metrics.jsonl")}
+    assert sorted(resumed) == sorted(uninterrupted) == list(range(1, target + 1))
+    for step in range(done + 1, target + 1):
+        assert resumed[step] == pytest.approx(uninterrupted[step], rel=1e-6, abs=1e-7), step
+
+
+def test_self_forcing_stage_runs_from_stages_2_and_3(run, data):
+    assert cli.main(["self-forcing", "--preset", "test", "--data", str(data), "--out", str(run)]) == 0
+    assert (model_dir(run, "self-forcing") / "config.json").is_file()
+    metrics = read_metrics(run / "self-forcing" / "metrics.jsonl")
+    assert [m["step"] for m in metrics] == [1, 2]
+    assert "generator/loss" in metrics[0] and "critic/loss" in metrics[0]  # iteration 0 updates both
+    assert "generator/loss" not in metrics[1] and "critic/loss" in metrics[1]
+    assert list((run / "self-forcing" / "samples").glob("*.mp4"))

@@ -1,0 +1,133 @@
+"""``solaris-train``: the training pipeline as commands.
+
+    solaris-train all --preset tiny --data data/tiny --out runs/tiny       # collect, VAE, stages 1-4
+    solaris-train vae --preset tiny --data data/tiny --out runs/tiny
+    solaris-train sp | mp-bidirectional | mp-causal | self-forcing --data ... --out ...
+    solaris-train install runs/tiny/self-forcing/model                    # -> solaris_env/assets/default
+
+Each stage reads the previous stage's ``OUT/<stage>/model`` and resumes from its own latest checkpoint
+(``--no-resume`` starts over). Per-stage defaults live in ``training/configs/<preset>.json``;
+``--steps`` overrides the stage's step count. Heavy imports (jax) happen only inside the commands.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from pathlib import Path
+
+STAGE_COMMANDS = ("vae", "sp", "mp-bidirectional", "mp-causal", "self-forcing")
+
+
+def _stage_cfg(args) -> dict:
+    from training.train import load_stage_config
+    return load_stage_config(args.preset, args.config)
+
+
+def collect_if_missing(data: Path, preset_name: str, collect_cfg: dict) -> None:
+    """Record the training data with the engine unless ``data/duet/train`` already holds episodes
+    (a collect is itself resumable: finished episodes are skipped)."""
+    from solaris_env.engine import cli as engine_cli
+    from solaris_env.world_model.config import preset
+
+    cfg = preset(preset_name)
+    argv = ["collect", "--out", str(data), "--episodes", str(collect_cfg["episodes"]), "--world", collect_cfg["world"],
+            "--resolution", f"{cfg.frame_width}x{cfg.frame_height}", "--seed", str(collect_cfg["seed"]),
+            "--test-fraction", str(collect_cfg["test_fraction"])]
+    rc = engine_cli.main(argv)
+    if rc:
+        raise SystemExit(f"solaris-engine {' '.join(argv)} failed with exit code {rc}")
+
+
+def run_stage(stage: str, args, stage_cfg: dict) -> Path:
+    from training import train
+
+    seed = stage_cfg.get("seed", 0) if args.seed is None else args.seed
+    kw = {"seed": seed, "steps": args.steps, "resume": not args.no_resume, "fsdp": args.fsdp}
+    if stage == "vae":
+        return train.train_vae(args.out, args.data, stage_cfg["preset"], stage_cfg["vae"], **kw)
+    if stage in train.FLOW_STAGES:
+        return train.train_flow(stage, args.out, args.data, stage_cfg[stage], **kw)
+    if stage == "self-forcing":
+        return train.train_self_forcing(args.out, args.data, stage_cfg["self-forcing"], **kw)
+    raise ValueError(f"unknown stage {stage!r}")
+
+
+def cmd_stage(args) -> int:
+    stage_cfg = _stage_cfg(args)
+    path = run_stage(args.command, args, stage_cfg)
+    print(f"{args.command}: model written to {path}")
+    return 0
+
+
+def cmd_all(args) -> int:
+    import time
+
+    from training.train import model_dir
+
+    stage_cfg = _stage_cfg(args)
+    t0 = time.perf_counter()
+    collect_if_missing(Path(args.data), args.preset, stage_cfg["collect"])
+    timings = {"collect_s": time.perf_counter() - t0}
+    for stage in STAGE_COMMANDS:
+        if args.skip_finished and (model_dir(args.out, stage) / "config.json").is_file():
+            print(f"{stage}: finished earlier, skipped")
+            continue
+        t = time.perf_counter()
+        run_stage(stage, args, stage_cfg)
+        timings[f"{stage}_s"] = time.perf_counter() - t
+        print(f"{stage}: done in {timings[f'{stage}_s'] / 60:.1f} min")
+    print(f"all stages done in {(time.perf_counter() - t0) / 60:.1f} min: {timings}")
+    return 0
+
+
+def cmd_install(args) -> int:
+    from training.train import install_default
+    print(f"installed {args.model} as the default model at {install_default(args.model, args.dest)}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="solaris-train", description=__doc__.split("\n\n")[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    def common(p):
+        p.add_argument("--preset", default="tiny", help="world-model preset (and its training/configs/<preset>.json)")
+        p.add_argument("--config", default=None, help="a stage-config JSON instead of training/configs/<preset>.json")
+        p.add_argument("--data", required=True, help="dataset root (holds duet/{train,test}; vpt/ is made from it)")
+        p.add_argument("--out", required=True, help="run directory (one sub-directory per stage)")
+        p.add_argument("--seed", type=int, default=None, help="seed (default: the stage config's)")
+        p.add_argument("--no-resume", action="store_true", help="start over instead of resuming")
+        p.add_argument("--fsdp", action="store_true",
+                       help="shard parameters and optimiser state over the devices (default: replicated)")
+
+    for stage in STAGE_COMMANDS:
+        p = sub.add_parser(stage, help=f"train the {stage} stage")
+        common(p)
+        p.add_argument("--steps", type=int, default=None, help="number of updates (default: the stage config's)")
+        p.set_defaults(func=cmd_stage)
+    a = sub.add_parser("all", help="collect data, then the VAE and stages 1-4 in order")
+    common(a)
+    a.add_argument("--skip-finished", action="store_true", default=True,
+                   help="skip stages whose model/ exists (default; resuming mid-stage is automatic)")
+    a.set_defaults(func=cmd_all, steps=None)
+    i = sub.add_parser("install", help="copy a trained model to the package's default-model directory")
+    i.add_argument("model", help="a model/ directory written by a stage")
+    i.add_argument("--dest", default=None, help="default: solaris_env/assets/default")
+    i.set_defaults(func=cmd_install)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    logging.getLogger("absl").setLevel(logging.WARNING)  # orbax logs every save step at INFO
+    args = build_parser().parse_args(argv)
+    if args.command != "install":
+        from training.distributed import maybe_initialize_distributed
+        maybe_initialize_distributed()  # multi-host when JAX_COORDINATOR_ADDRESS / JAX_NUM_PROCESSES are set
+    return args.func(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,227 @@
+"""Pre-encoded training clips for the DiT stages: every video encoded once by the frozen VAE.
+
+Encoding each training clip on the fly costs more than the DiT step itself on our CPU (the VAE encoder
+runs at full resolution), so stages 1-4 read latents from a cache made once per VAE:
+
+* per recorded video (one bot's view) of N frames, ``Ns = 1 + (N - 1) // k`` rows, each holding two
+  latents (normalised posterior means, stored f16):
+  ``stream[j]`` = latent j of the whole video encoded as one causal stream (latent 0 = frame 0, latent
+  j >= 1 = frames k(j-1)+1 .. kj), and ``image[j]`` = frame kj encoded alone (a clip's latent 0).
+* a clip whose first frame is video frame ``f0 = k*a`` (an *anchor*) is then
+  ``x0 = [image[a], stream[a+1], ..., stream[a+F-1]]``: latent 0 exactly as the world model encodes
+  a start frame, later latents as the streaming encoder sees them (with the video's causal history
+  instead of the clip's, a negligible difference beyond the encoder's receptive field).
+
+Segments come from the usual resumable samplers (``training.data``); their starts are snapped down
+to the anchor grid: record start ``s`` becomes ``s' = k * floor((s + 1) / k) - 1`` so that the first
+frame ``s' + 1`` is an anchor (``s' = -1`` means the clip starts at frame 0; its first action, which
+precedes the recording, is a no-op). The first-frame conditioning is made from ``image[a]`` when the
+config uses ``cond_encoding="image"`` (the tiny preset); the image-encoder context is computed from the
+anchor frame's pixels per batch (it is cheap).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import nnx
+
+from solaris_env.world_model.action_module import left_pad_actions
+from solaris_env.world_model.conditioning import first_frame_mask
+from solaris_env.world_model.config import WorldModelConfig
+from solaris_env.world_model.dit import to_stream
+from solaris_env.world_model.world_model import frames_to_model
+from training import data as D
+
+logger = logging.getLogger(__name__)
+
+STREAM_CHUNK_LATENTS = 32  # latent frames encoded per streaming call (k * 32 video frames)
+IMAGE_BATCH = 64  # anchor frames encoded per call
+
+
+def vae_fingerprint(cfg: WorldModelConfig, vae_state) -> str:
+    """Identifies a VAE: its config and a hash of its weights."""
+    h = hashlib.sha1(repr(cfg.vae).encode())
+    for leaf in jax.tree.leaves(vae_state):
+        h.update(np.asarray(leaf).tobytes())
+    return f"{cfg.name}-{cfg.frame_height}x{cfg.frame_width}-{h.hexdigest()[:16]}"
+
+
+class VideoEncoder:
+    """Jitted streaming + per-anchor encoding of whole videos (fixed chunk shapes: one compile each)."""
+
+    def __init__(self, cfg: WorldModelConfig, vae) -> None:
+        self.cfg = cfg
+        self.k = cfg.frames_per_step
+        graphdef, state = nnx.split(vae)
+        self._state = state
+        self.fingerprint = vae_fingerprint(cfg, state)
+
+        def first(st, video):
+            return nnx.merge(graphdef, st).encode_chunked(frames_to_model(video))
+
+        def nxt(st, video, cache):
+            return nnx.merge(graphdef, st).encode_chunked(frames_to_model(video), cache)
+
+        def image(st, frames):
+            return nnx.merge(graphdef, st).encode(frames_to_model(frames)[:, None])[:, 0]
+
+        self._first, self._next, self._image = jax.jit(first), jax.jit(nxt), jax.jit(image)
+
+    def __call__(self, frames_THW3: np.ndarray) -> np.ndarray:
+        """(N, H, W, 3) uint8 -> (Ns, 2, h, w, C) f16: [:, 0] stream latents, [:, 1] anchor images."""
+        k, c = self.k, STREAM_CHUNK_LATENTS
+        n = len(frames_THW3)
+        ns = 1 + (n - 1) // k
+        usable = frames_THW3[: 1 + k * (ns - 1)]
+        pad = lambda v, length: np.concatenate([v, np.repeat(v[-1:], length - len(v), axis=0)]) if len(v) < length else v
+        stream = []
+        head = pad(usable[: 1 + k * c], 1 + k * c)
+        z, cache = self._first(self._state, jnp.asarray(head[None]))
+        stream.append(np.asarray(z[0]))
+        for start in range(1 + k * c, len(usable), k * c):
+            chunk = pad(usable[start:start + k * c], k * c)
+            z, cache = self._next(self._state, jnp.asarray(chunk[None]), cache)
+            stream.append(np.asarray(z[0]))
+        stream = np.concatenate(stream)[:ns]
+        anchors = usable[::k]
+        images = []
+        for start in range(0, len(anchors), IMAGE_BATCH):
+            batch = pad(anchors[start:start + IMAGE_BATCH], IMAGE_BATCH)
+            images.append(np.asarray(self._image(self._state, jnp.asarray(batch))))
+        images = np.concatenate(images)[:ns]
+        return np.stack([stream, images], axis=1).astype(np.float16)
+
+
+def snap_start(start: int, k: int) -> int:
+    """Record start -> the anchored start ``k * floor((start + 1) / k) - 1`` (>= -1)."""
+    return k * ((start + 1) // k) - 1
+
+
+class LatentClips:
+    """Clips of a Duet (P players) or VPT-layout (1 player) dataset served from the latent cache.
+
+    Args:
+        dataset: a ``DuetDataset`` or ``VPTDataset`` (frames at the config's size).
+        cache: a ``training.data.LatentCache`` whose fingerprint names the VAE.
+        encoder: the ``VideoEncoder`` used on a cache miss.
+    """
+
+    def __init__(self, dataset, cache: D.LatentCache, encoder: VideoEncoder, canonical_dir: Path | None = None) -> None:
+        self.dataset, self.cache, self.encoder = dataset, cache, encoder
+        self.k = encoder.k
+        self._latents: dict[Path, np.ndarray] = {}
+        # the VPT export hard-links the Duet videos: latents are shared through the inode
+        self._canonical = {}
+        if canonical_dir is not None and Path(canonical_dir).is_dir():
+            for mp4 in sorted(Path(canonical_dir).glob("*/*.mp4")):
+                st = mp4.stat()
+                self._canonical[(st.st_dev, st.st_ino)] = mp4
+
+    def _player_recordings(self, segment) -> list[tuple[Path, np.ndarray, int]]:
+        """[(video, act_T25, start)] per player."""
+        if isinstance(segment, D.SegmentMP):
+            recs = self.dataset.recordings(segment.episode_id)
+            return [(r.video, r.act_T25, s) for r, s in zip(recs, (segment.start1, segment.start2))]
+        episode = self.dataset.episode(segment.episode_id)
+        return [(episode.video, episode.act_T25, segment.start)]
+
+    def latents(self, video: Path) -> np.ndarray:
+        lat = self._latents.get(video)
+        if lat is None:
+            st = video.stat()
+            source = self._canonical.get((st.st_dev, st.st_ino), video)
+            lat = self.cache.get_or_encode(source, self.encoder, self.dataset.frames.size)
+            self._latents[video] = lat
+        return lat
+
+    def build(self, episode_ids=None) -> int:
+        """Encode every (valid) episode's videos now; returns the number of videos encoded or found."""
+        ids = self.dataset.valid_ids if episode_ids is None else episode_ids
+        count = 0
+        for i, episode_id in enumerate(ids):
+            segment = (D.SegmentMP(episode_id, 0, 0) if isinstance(self.dataset, D.DuetDataset)
+                       else D.SegmentSP(episode_id, 0))
+            for video, _, _ in self._player_recordings(segment):
+                self.latents(video)
+                count += 1
+            if (i + 1) % 20 == 0:
+                logger.info("latent cache: %d/%d episodes (%s)", i + 1, len(ids), dict(self.cache.stats))
+        return count
+
+    def load(self, segment, num_frames: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """-> (x0 (P, F, h, w, C) f32, first frames (P, H, W, 3) uint8, actions (T, P, 25) f32)."""
+        k = self.k
+        num_latent = 1 + (num_frames - 1) // k
+        x0s, firsts, acts = [], [], []
+        for video, act_T25, start in self._player_recordings(segment):
+            s = snap_start(start, k)
+            a = (s + 1) // k
+            lat = self.latents(video)
+            if a + num_latent > len(lat):
+                raise D.EpisodeError(D.DECODE_ERROR, f"{video.name}: {len(lat)} latents, clip needs {a + num_latent}")
+            x0s.append(np.concatenate([lat[a:a + 1, 1], lat[a + 1:a + num_latent, 0]]).astype(np.float32))
+            firsts.append(self.dataset.frames.read(video, s + 1, s + 2)[0])
+            act = act_T25[max(s, 0): s + num_frames]
+            if s < 0:
+                act = np.concatenate([np.zeros((1, act_T25.shape[1]), np.float32), act])
+            acts.append(act)
+        return np.stack(x0s), np.stack(firsts), np.stack(acts, axis=1)
+
+    def next_batch(self, sampler, batch_size: int, num_frames: int) -> dict[str, np.ndarray]:
+        """Draw ``batch_size`` clips (skipping episodes that fail, like ``training.data.next_batch``)."""
+        out = []
+        while len(out) < batch_size:
+            segment = sampler.next()
+            try:
+                out.append(self.load(segment, num_frames))
+            except D.EpisodeError:
+                continue
+        x0, first, act = (np.stack(parts) for parts in zip(*out))
+        return {"x0": x0, "first": first, "act": act}
+
+
+def make_prepare_latents(cfg: WorldModelConfig, vae, encoder):
+    """Jitted ``(x0 (B,P,F,h,w,C), first (B,P,H,W,3) uint8, act (B,T,P,25)) -> DiT batch`` (the dict of
+    ``training.step.prepare_batch``) from cached latents; the image encoder runs on the first frames."""
+    (vg, vs), (eg, es) = nnx.split(vae), nnx.split(encoder)
+
+    def prepare(vae_state, enc_state, x0, first, act):
+        b, p, f = x0.shape[:3]
+        first_flat = frames_to_model(first.reshape((b * p,) + first.shape[2:]))
+        context = nnx.merge(eg, enc_state)(first_flat)
+        if cfg.vae.cond_encoding == "image":
+            img = jnp.concatenate([x0[:, :, :1], jnp.zeros_like(x0[:, :, 1:])], axis=2)
+            mask = first_frame_mask(f, cfg.frames_per_step)
+            mask = jnp.broadcast_to(mask[None, None, :, None, None, :], (b, p, f) + x0.shape[3:5] + mask.shape[-1:])
+            cond = jnp.concatenate([mask, img], axis=-1)
+        else:  # the Wan layout encodes gray frames after the first: run the VAE
+            from solaris_env.world_model.conditioning import first_frame_cond
+            cond = first_frame_cond(nnx.merge(vg, vae_state), first_flat, f).reshape((b, p, f) + x0.shape[3:5] + (-1,))
+        actions = left_pad_actions(act.astype(jnp.float32).transpose(0, 2, 1, 3), cfg.action_left_padding)
+        kb = cfg.action.keyboard_dim
+        unfold = lambda a: to_stream(cfg, jax.lax.stop_gradient(a))
+        return {"x0": unfold(x0), "cond": unfold(cond),
+                "context": unfold(context.reshape((b, p) + context.shape[1:])),
+                "mouse": to_stream(cfg, actions[..., kb:]), "keyboard": to_stream(cfg, actions[..., :kb])}
+
+    jitted = jax.jit(prepare)
+    return lambda batch: jitted(vs, es, jnp.asarray(batch["x0"]), jnp.asarray(batch["first"]),
+                                jnp.asarray(batch["act"]))
+
+
+def latent_clips(dataset, cfg: WorldModelConfig, vae, cache_root: Path, canonical_dir: Path | None = None
+                 ) -> LatentClips:
+    """LatentClips with its cache under ``cache_root/<VAE fingerprint>``; ``canonical_dir`` (e.g.
+    ``data/duet``) names the videos that hard-linked copies (the VPT export) share latents with."""
+    encoder = VideoEncoder(cfg, vae)
+    cache = D.LatentCache(Path(cache_root) / encoder.fingerprint, encoder.fingerprint)
+    return LatentClips(dataset, cache, encoder, canonical_dir)
+
+
+__all__ = ["LatentClips", "VideoEncoder", "latent_clips", "make_prepare_latents", "snap_start", "vae_fingerprint"]

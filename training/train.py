@@ -1,0 +1,441 @@
+"""The training stages as functions (``solaris-train`` calls them): VAE, then the paper's four stages.
+
+    out/
+      vae/               model/ (a WorldModel checkpoint: trained VAE + its latent statistics)
+      sp/                model/ (stage 1: bidirectional, one player, on the VPT-layout export)
+      mp-bidirectional/  model/ (stage 2: bidirectional, both players, player embedding learned)
+      mp-causal/         model/ (stage 3: block-causal sliding window, Diffusion Forcing)
+      self-forcing/      model/ (stage 4: Checkpointed Self Forcing with DMD; the final model)
+    each stage dir also holds checkpoints/ (orbax: train state + data-sampler state), metrics.jsonl and
+    samples/ (periodic generated-vs-ground-truth videos of both players).
+
+Every stage starts from the previous stage's ``model/`` and resumes from its own latest checkpoint:
+a run killed at any point (even ``kill -9``) and restarted continues with the same next loss, because
+the train state, the optimiser state, the step RNG and the data sampler are all restored. Stage
+hyper-parameters come from ``training/configs/<preset>.json`` (one block per stage).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+from flax import nnx
+
+from solaris_env.world_model import checkpoint
+from solaris_env.world_model.config import WorldModelConfig
+from solaris_env.world_model.config import preset as make_preset
+from solaris_env.world_model.dit import WorldDiT
+from solaris_env.world_model.world_model import WorldModel
+from training import data as D
+from training.checkpointing import Checkpointer, abstract_state
+from training.metrics import MetricsLogger
+from training.step import (
+    TrainState,
+    check_finite,
+    make_optimizer,
+    make_train_step,
+)
+
+logger = logging.getLogger(__name__)
+
+CONFIG_DIR = Path(__file__).parent / "configs"
+STAGES = ("vae", "sp", "mp-bidirectional", "mp-causal", "self-forcing")
+
+
+@dataclass(frozen=True)
+class FlowStage:
+    """A flow-matching DiT stage: its DiT entry point, noise type, the stage it starts from, its data."""
+
+    entry_point: str
+    noise_type: str
+    init_from: str
+    single_player: bool  # stage 1: VPT-layout single-player clips, player embedding frozen at zero
+
+
+FLOW_STAGES = {
+    "sp": FlowStage("forward_bidirectional", "standard", "vae", single_player=True),
+    "mp-bidirectional": FlowStage("forward_bidirectional", "standard", "sp", single_player=False),
+    "mp-causal": FlowStage("forward_causal", "diffusion_forcing", "mp-bidirectional", single_player=False),
+}
+
+
+def load_stage_config(preset_name: str, path: str | Path | None = None) -> dict:
+    """The per-stage defaults: ``path`` or ``training/configs/<preset>.json``."""
+    path = Path(path) if path else CONFIG_DIR / f"{preset_name}.json"
+    if not path.is_file():
+        raise FileNotFoundError(f"no stage config {path}; presets with one: "
+                                f"{sorted(p.stem for p in CONFIG_DIR.glob('*.json'))}")
+    cfg = json.loads(path.read_text())
+    missing = [s for s in STAGES if s not in cfg]
+    if missing:
+        raise ValueError(f"{path}: missing stage blocks {missing}")
+    return cfg
+
+
+def stage_dir(out: str | Path, stage: str) -> Path:
+    return Path(out) / stage
+
+
+def model_dir(out: str | Path, stage: str) -> Path:
+    return stage_dir(out, stage) / "model"
+
+
+# ---------------------------------------------------------------------------------------------
+# The loop shared by every stage
+# ---------------------------------------------------------------------------------------------
+
+
+@dataclass
+class LoopSpec:
+    stage: str
+    steps: int
+    log_every: int
+    ckpt_every: int
+    sample_every: int
+    tokens_per_step: int  # for tokens/s (latent tokens of a batch seen by the DiT; pixels for the VAE)
+    lr: float
+    fsdp: bool = False  # shard parameters and optimiser state over the "data" mesh axis (else replicated)
+
+
+def run_loop(spec: LoopSpec, out: Path, state: Any, step_fn: Callable, draw_batch: Callable[[], Any],
+             sampler, resume: bool, on_sample: Callable[[Any, int], None] | None = None) -> Any:
+    """Train ``state`` to ``spec.steps`` updates with checkpoints, metrics and samples; resumable.
+
+    ``step_fn(state, batch) -> (state, metrics)`` donates ``state``; ``draw_batch()`` draws from ``sampler``
+    (its ``state_dict`` is checkpointed with the train state). Returns the final state.
+    """
+    from training.distributed import make_mesh, shard_batch, shard_train_state
+
+    directory = stage_dir(out, spec.stage)
+    mesh = make_mesh()  # 1-D "data" axis over every device (of every host)
+    state = shard_train_state(state, mesh, fsdp=spec.fsdp)
+    ckpt = Checkpointer(directory / "checkpoints", keep=2)
+    start = 0
+    if resume and (latest := ckpt.latest_step()) is not None:
+        state, extra = ckpt.restore(latest, abstract_state(state))
+        sampler.load_state_dict(extra["sampler"])
+        start = latest
+        logger.info("%s: resumed at step %d", spec.stage, start)
+    metrics_log = MetricsLogger(directory / "metrics.jsonl", resume_step=start)
+    bar = metrics_log.progress(total=spec.steps, initial=start, desc=spec.stage)
+    t_last, n_last = time.perf_counter(), start
+    for step in range(start, spec.steps):
+        state, metrics = step_fn(state, shard_batch(draw_batch(), mesh))
+        done = step + 1
+        if done % spec.log_every == 0 or done == spec.steps:
+            host = check_finite(metrics, step)
+            now = time.perf_counter()
+            steps_per_s = (done - n_last) / max(now - t_last, 1e-9)
+            t_last, n_last = now, done
+            metrics_log.log(done, stage=spec.stage, lr=spec.lr, steps_per_s=steps_per_s,
+                            tokens_per_s=steps_per_s * spec.tokens_per_step, **host)
+            losses = {k: f"{v:.4f}" for k, v in host.items() if k.endswith("loss")}
+            bar.set_postfix(**losses, steps_s=f"{steps_per_s:.2f}")
+        bar.update(1)
+        if done % spec.ckpt_every == 0 or done == spec.steps:
+            ckpt.save(done, state, {"sampler": sampler.state_dict(), "stage": spec.stage})
+        if on_sample is not None and (done % spec.sample_every == 0 or done == spec.steps):
+            on_sample(state, done)
+    bar.close()
+    metrics_log.close()
+    ckpt.close()
+    return state
+
+
+# ---------------------------------------------------------------------------------------------
+# Data
+# ---------------------------------------------------------------------------------------------
+
+
+def local_batch_size(batch_size: int) -> int:
+    """Rows this process loads: the global batch split over the processes (multi-host)."""
+    if batch_size % jax.process_count():
+        raise ValueError(f"batch_size {batch_size} must be a multiple of the process count {jax.process_count()}")
+    return batch_size // jax.process_count()
+
+
+def _ranks() -> dict:
+    """Each process draws its own disjoint episodes (the samplers' rank partition)."""
+    return {"rank": jax.process_index(), "num_ranks": jax.process_count()}
+
+
+def duet_stream(data_dir: Path, cfg: WorldModelConfig, num_frames: int, seed: int, split: str = "train"):
+    dataset = D.DuetDataset(data_dir, split, obs_size=(cfg.frame_height, cfg.frame_width), frame_cache_mb=4096)
+    return dataset, D.MultiplayerSegmentSampler(dataset, num_frames, seed=seed, **(_ranks() if split == "train" else {}))
+
+
+def vpt_stream(data_dir: Path, cfg: WorldModelConfig, num_frames: int, seed: int, split: str = "train"):
+    if not (Path(data_dir) / "vpt" / split / "episodes_info.json").is_file():
+        from solaris_env.engine.vpt_export import export_vpt
+        export_vpt(data_dir, data_dir)  # links the Duet videos; single-player actions per bot
+    dataset = D.VPTDataset(data_dir, split, obs_size=(cfg.frame_height, cfg.frame_width), frame_cache_mb=4096)
+    return dataset, D.SinglePlayerSegmentSampler(dataset, num_frames, seed=seed, **(_ranks() if split == "train" else {}))
+
+
+# ---------------------------------------------------------------------------------------------
+# VAE
+# ---------------------------------------------------------------------------------------------
+
+
+def train_vae(out: str | Path, data_dir: str | Path, preset_name: str, stage_cfg: dict, seed: int = 0,
+              steps: int | None = None, resume: bool = True, fsdp: bool = False) -> Path:
+    """Train the preset's VAE on single-player clips of the Duet data; write ``out/vae/model``."""
+    from training import vae as V
+
+    out, data_dir = Path(out), Path(data_dir)
+    sc = dict(stage_cfg)
+    steps = steps or sc["steps"]
+    cfg = make_preset(preset_name)
+    cfg = cfg.replace(vae=dataclasses.replace(cfg.vae, latent_mean=(), latent_std=()))
+    model = WorldModel.from_config(cfg, seed=seed)
+    _, vae, _ = model.modules()
+    tx = make_optimizer(sc["lr"])
+    graphdef, state = TrainState.create(vae, tx, rng=seed)
+    step_fn = V.make_vae_train_step(graphdef, tx, V.VAELossWeights())
+    dataset, sampler = duet_stream(data_dir, cfg, sc["num_frames"], seed)
+    batch_size = local_batch_size(sc["batch_size"])
+
+    def draw():  # B segments x P players -> B*P single-player clips (B*P, T, H, W, 3)
+        obs = D.next_batch(dataset, sampler, batch_size)["obs"]
+        return jnp.asarray(np.swapaxes(obs, 1, 2).reshape((-1,) + obs.shape[1:2] + obs.shape[3:]))
+
+    test_clips = _fixed_clips(data_dir, cfg, sc["num_frames"], sc["eval_clips"], seed)
+    reconstruct = V.make_reconstruct(graphdef)
+    samples = stage_dir(out, "vae") / "samples"
+
+    def on_sample(st, step):
+        psnr = np.mean([V.psnr_uint8(np.asarray(reconstruct(st.params, st.rest, c)), c) for c in test_clips])
+        _log_json(stage_dir(out, "vae") / "eval.jsonl", {"step": step, "test_psnr_db": float(psnr)})
+        _write_pairs(samples / f"recon_{step:06d}.png", test_clips[0][:4],
+                     np.asarray(reconstruct(st.params, st.rest, test_clips[0][:4])))
+
+    spec = LoopSpec("vae", steps, sc["log_every"], sc["ckpt_every"], sc["sample_every"],
+                    tokens_per_step=batch_size * cfg.num_players * sc["num_frames"] * cfg.frame_height
+                    * cfg.frame_width, lr=sc["lr"], fsdp=fsdp)
+    state = run_loop(spec, out, state, step_fn, draw, sampler, resume, on_sample)
+
+    stats_clips = [draw() for _ in range(max(1, sc["stats_clips"] // (batch_size * cfg.num_players)))]
+    mean, std = V.latent_statistics(graphdef, state.params, state.rest, stats_clips)
+    test_psnr = float(np.mean([V.psnr_uint8(np.asarray(reconstruct(state.params, state.rest, c)), c)
+                               for c in test_clips]))
+    final_cfg = cfg.replace(vae=dataclasses.replace(cfg.vae, latent_mean=mean, latent_std=std))
+    trained_vae = nnx.merge(graphdef, state.params, state.rest)
+    dit, _, encoder = model.modules()
+    WorldModel(final_cfg, dit, trained_vae, encoder).save(model_dir(out, "vae"))
+    _write_json(stage_dir(out, "vae") / "summary.json",
+                {"steps": steps, "test_psnr_db": test_psnr, "latent_mean": mean, "latent_std": std})
+    return model_dir(out, "vae")
+
+
+def _fixed_clips(data_dir: Path, cfg: WorldModelConfig, num_frames: int, count: int, seed: int) -> list[np.ndarray]:
+    """Held-out single-player clips (duet/test), the same every run: list of (n, T, H, W, 3) uint8."""
+    dataset, sampler = duet_stream(data_dir, cfg, num_frames, seed + 10_000, split="test")
+    obs = D.next_batch(dataset, sampler, max(1, count // cfg.num_players))["obs"]
+    clips = np.swapaxes(obs, 1, 2).reshape((-1,) + obs.shape[1:2] + obs.shape[3:])
+    return [clips[i:i + 8] for i in range(0, len(clips), 8)]
+
+
+# ---------------------------------------------------------------------------------------------
+# Flow-matching stages 1-3
+# ---------------------------------------------------------------------------------------------
+
+
+def load_stage_model(out: Path, stage: str, num_players: int | None = None) -> tuple[WorldModelConfig, tuple]:
+    """(config, (dit, vae, image_encoder)) of a finished stage, the DiT rebuilt for ``num_players``."""
+    path = model_dir(out, stage)
+    if not (path / "config.json").is_file():
+        raise FileNotFoundError(f"stage {stage!r} has no finished model at {path}; run `solaris-train {stage}` first")
+    model = WorldModel.load(path)
+    cfg = model.config if num_players is None else model.config.replace(num_players=num_players)
+    dit, vae, encoder = model.modules()
+    if num_players is not None:
+        graphdef = nnx.split(nnx.eval_shape(lambda: WorldDiT(cfg, rngs=nnx.Rngs(0))))[0]
+        dit = nnx.merge(graphdef, nnx.state(dit))
+    return cfg, (dit, vae, encoder)
+
+
+def _frozen_player_embedding(params) -> Any:
+    """optax labels: the player embedding is frozen (stage 1 has none; it stays zero until stage 2)."""
+    return jax.tree_util.tree_map_with_path(
+        lambda path, _: "frozen" if any(getattr(k, "key", None) == "player_embed" for k in path) else "train", params)
+
+
+def clip_stream(out: Path, data_dir: Path, cfg: WorldModelConfig, vae, encoder, sc: dict, seed: int,
+                single_player: bool):
+    """(LatentClips, resumable sampler, jitted batch preparation) of a DiT stage; the latent cache of the
+    stage's VAE lives in ``out/latents`` and is built (once) before training."""
+    from training.latents import latent_clips, make_prepare_latents
+
+    dataset, sampler = (vpt_stream if single_player else duet_stream)(data_dir, cfg, sc["num_frames"], seed)
+    clips = latent_clips(dataset, cfg, vae, Path(out) / "latents", canonical_dir=Path(data_dir) / "duet")
+    t0 = time.perf_counter()
+    n = clips.build()
+    logger.info("latent cache: %d videos ready in %.0f s (%s)", n, time.perf_counter() - t0, dict(clips.cache.stats))
+    return clips, sampler, make_prepare_latents(cfg, vae, encoder)
+
+
+def train_flow(stage: str, out: str | Path, data_dir: str | Path, stage_cfg: dict, seed: int = 0,
+               steps: int | None = None, resume: bool = True, fsdp: bool = False) -> Path:
+    """Stages 1-3: flow matching of the DiT with the stage's entry point and noise type."""
+    if stage not in FLOW_STAGES:
+        raise ValueError(f"stage must be one of {sorted(FLOW_STAGES)}, got {stage!r}")
+    fs = FLOW_STAGES[stage]
+    out, data_dir = Path(out), Path(data_dir)
+    sc = dict(stage_cfg)
+    steps = steps or sc["steps"]
+    base_cfg = checkpoint.read_config(model_dir(out, fs.init_from))
+    players = 1 if fs.single_player else make_preset(base_cfg.name).num_players
+    cfg, (dit, vae, encoder) = load_stage_model(out, fs.init_from, num_players=players)
+    adamw = make_optimizer(sc["lr"])
+    if fs.single_player:
+        params = nnx.state(dit, nnx.Param)
+        dit.player_embed.embedding.set_value(jnp.zeros_like(dit.player_embed.embedding[...]))
+        tx = optax.multi_transform({"train": adamw, "frozen": optax.set_to_zero()}, _frozen_player_embedding(params))
+    else:
+        tx = adamw
+    graphdef, state = TrainState.create(dit, tx, rng=seed)
+    train_step = make_train_step(graphdef, fs.entry_point, fs.noise_type, tx)
+    clips, sampler, prepare = clip_stream(out, data_dir, cfg, vae, encoder, sc, seed, fs.single_player)
+    batch_size = local_batch_size(sc["batch_size"])
+
+    def draw():
+        return prepare(clips.next_batch(sampler, batch_size, sc["num_frames"]))
+
+    def on_sample(st, step):
+        from training.samples import write_stage_sample
+        write_stage_sample(stage_dir(out, stage) / "samples" / f"step_{step:06d}", cfg,
+                           nnx.merge(graphdef, st.params, st.rest), vae, encoder, data_dir, fs.entry_point, seed)
+
+    frames = cfg.vae.latent_frames(sc["num_frames"])
+    spec = LoopSpec(stage, steps, sc["log_every"], sc["ckpt_every"], sc["sample_every"],
+                    tokens_per_step=batch_size * cfg.num_players * frames * cfg.tokens_per_frame, lr=sc["lr"],
+                    fsdp=fsdp)
+    state = run_loop(spec, out, state, train_step, draw, sampler, resume, on_sample)
+    trained = nnx.merge(graphdef, state.params, state.rest)
+    WorldModel(cfg, trained, vae, encoder).save(model_dir(out, stage))
+    return model_dir(out, stage)
+
+
+# ---------------------------------------------------------------------------------------------
+# Stage 4: Checkpointed Self Forcing with DMD
+# ---------------------------------------------------------------------------------------------
+
+
+def train_self_forcing(out: str | Path, data_dir: str | Path, stage_cfg: dict, seed: int = 0,
+                       steps: int | None = None, resume: bool = True, fsdp: bool = False) -> Path:
+    """Stage 4: generator from mp-causal, critic and frozen teacher from mp-bidirectional (model-spec
+    §6.3); ``steps`` counts iterations (a critic update each, a generator update every 5th). The
+    generator mode is ``stage_cfg["generator"]``: "checkpointed" (default) or "naive"."""
+    from training import self_forcing as SF
+
+    out, data_dir = Path(out), Path(data_dir)
+    sc = dict(stage_cfg)
+    steps = steps or sc["steps"]
+    cfg, (generator, vae, encoder) = load_stage_model(out, "mp-causal")
+    _, (teacher, _, _) = load_stage_model(out, "mp-bidirectional")
+    _, (critic, _, _) = load_stage_model(out, "mp-bidirectional")
+    sf_cfg = SF.SelfForcingConfig(generator_lr=sc["generator_lr"], critic_lr=sc["critic_lr"])
+    gen_tx, critic_tx = SF.make_optimizers(sf_cfg)
+    graphs, state = SF.create_self_forcing_state(generator, critic, teacher, gen_tx, critic_tx, rng=seed)
+    mode = sc.get("generator", "checkpointed")
+    make_generator_step = {"checkpointed": SF.make_checkpointed_generator_step,
+                           "naive": SF.make_naive_generator_step}
+    if mode not in make_generator_step:
+        raise ValueError(f"self-forcing generator must be one of {sorted(make_generator_step)}, got {mode!r}")
+    iteration = SF.make_iteration(make_generator_step[mode](graphs, gen_tx, sf_cfg),
+                                  SF.make_critic_step(graphs, critic_tx, sf_cfg), sf_cfg)
+    clips, sampler, prepare = clip_stream(out, data_dir, cfg, vae, encoder, sc, seed, single_player=False)
+    batch_size = local_batch_size(sc["batch_size"])
+
+    def draw():
+        return SF.conditioning_batch(prepare(clips.next_batch(sampler, batch_size, sc["num_frames"])))
+
+    def on_sample(st, step):
+        from training.samples import write_stage_sample
+        dit = nnx.merge(graphs.generator, st.generator.params, st.generator.rest)
+        write_stage_sample(stage_dir(out, "self-forcing") / "samples" / f"step_{step:06d}", cfg, dit, vae, encoder,
+                           data_dir, "forward_causal", seed)
+
+    frames = cfg.vae.latent_frames(sc["num_frames"])
+    spec = LoopSpec("self-forcing", steps, sc["log_every"], sc["ckpt_every"], sc["sample_every"],
+                    tokens_per_step=batch_size * cfg.num_players * frames * cfg.tokens_per_frame,
+                    lr=sf_cfg.generator_lr, fsdp=fsdp)
+    state = run_loop(spec, out, state, iteration, draw, sampler, resume, on_sample)
+    trained = nnx.merge(graphs.generator, state.generator.params, state.generator.rest)
+    WorldModel(cfg, trained, vae, encoder).save(model_dir(out, "self-forcing"))
+    return model_dir(out, "self-forcing")
+
+
+# ---------------------------------------------------------------------------------------------
+# Small file helpers
+# ---------------------------------------------------------------------------------------------
+
+
+def _write_json(path: Path, obj) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(json.dumps(obj, indent=1))
+    tmp.replace(path)
+
+
+def _log_json(path: Path, obj) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "a") as f:
+        f.write(json.dumps(obj) + "\n")
+
+
+def _write_pairs(path: Path, gt_NTHW3: np.ndarray, rec_NTHW3: np.ndarray) -> None:
+    """A PNG grid: per clip, ground-truth frames on one row and reconstructions under them."""
+    import cv2
+
+    rows = []
+    for gt, rec in zip(gt_NTHW3, rec_NTHW3):
+        rows += [np.concatenate(list(gt), axis=1), np.concatenate(list(rec), axis=1)]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(path), cv2.cvtColor(np.concatenate(rows, axis=0), cv2.COLOR_RGB2BGR))
+
+
+# ---------------------------------------------------------------------------------------------
+# Shipping
+# ---------------------------------------------------------------------------------------------
+
+DEFAULT_MODEL_DIR = Path(__file__).resolve().parent.parent / "solaris_env" / "assets" / "default"
+
+
+def install_default(model: str | Path, dest: str | Path | None = None, extra_files: tuple = ()) -> Path:
+    """Copy a stage's ``model/`` (weights + config) and ``extra_files`` (training log, eval summary) to
+    the package's default-model directory, atomically (the env loads it when no checkpoint is named)."""
+    import shutil
+    import tempfile
+
+    model, dest = Path(model), Path(dest) if dest else DEFAULT_MODEL_DIR
+    WorldModel.load(model)  # refuse to install anything that does not load
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{dest.name}.tmp-", dir=dest.parent))
+    try:
+        for f in model.iterdir():
+            shutil.copy2(f, tmp / f.name)
+        for f in map(Path, extra_files):
+            shutil.copy2(f, tmp / f.name)
+        if dest.exists():
+            old = Path(tempfile.mkdtemp(prefix=f".{dest.name}.old-", dir=dest.parent))
+            dest.replace(old / dest.name)
+            tmp.replace(dest)
+            shutil.rmtree(old)
+        else:
+            tmp.replace(dest)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp)
+    return dest

@@ -1,0 +1,114 @@
+"""Training the causal video VAE on engine frames (the stage before the DiT stages).
+
+The official model uses the pretrained Wan2.1 VAE; nothing can be downloaded here, so our presets
+train their own on the engine's recordings. Objective (per clip of T = 1 + k * n frames in [-1, 1]):
+
+    z ~ q(z | x) (reparameterised),  x_hat = decode(z),
+    loss = mean((x_hat - x)^2) + l1_weight * mean|x_hat - x| + kl_weight * KL(q || N(0, I)) / num_pixels
+
+Clips are short (a few latent frames) so the encoder and decoder see both the first-frame mode (latent
+0 = one frame) and the chunk mode (later latents = k frames with causal history), as the world model
+uses them. After training, :func:`latent_statistics` measures the per-channel mean/std of the posterior
+means, which become the config's ``latent_mean``/``latent_std`` (the DiT works on normalised latents).
+
+    graphdef, state = TrainState.create(vae, make_optimizer(lr), rng=0)
+    step = make_vae_train_step(graphdef, tx, VAELossWeights())
+    state, metrics = step(state, video_BTHWC)          # video in [-1, 1]
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+from flax import nnx
+
+from solaris_env.world_model.vae import CausalVideoVAE, kl_divergence, sample_posterior
+from solaris_env.world_model.world_model import frames_to_model
+from training.step import TrainState
+
+
+@dataclass(frozen=True)
+class VAELossWeights:
+    l1: float = 0.1  # a little L1 keeps edges sharper than MSE alone
+    kl: float = 1e-6  # per pixel-normalised KL, small (a near-deterministic autoencoder, as LDM/Wan)
+
+
+def vae_loss(vae: CausalVideoVAE, video_BTHWC: jax.Array, key: jax.Array, weights: VAELossWeights
+             ) -> tuple[jax.Array, dict[str, jax.Array]]:
+    """Scalar loss and its parts for a clip batch in [-1, 1] (T = 1 + k * n)."""
+    mu, logvar = vae.encode_moments(video_BTHWC)
+    z = sample_posterior(mu, logvar, key=key)
+    recon = vae.decode_raw(z)
+    err = recon - video_BTHWC.astype(jnp.float32)
+    mse = jnp.mean(jnp.square(err))
+    l1 = jnp.mean(jnp.abs(err))
+    kl = jnp.mean(kl_divergence(mu, logvar)) / np.prod(video_BTHWC.shape[1:])
+    loss = mse + weights.l1 * l1 + weights.kl * kl
+    return loss, {"mse": mse, "l1": l1, "kl": kl}
+
+
+def make_vae_train_step(graphdef: nnx.GraphDef, tx: optax.GradientTransformation, weights: VAELossWeights):
+    """-> jitted ``step(state, video_BTHWC uint8) -> (state, metrics)``, state donated."""
+
+    def loss_fn(params, rest, video, key):
+        return vae_loss(nnx.merge(graphdef, params, rest), video, key, weights)
+
+    def step(state: TrainState, video_uint8: jax.Array):
+        key = jax.random.fold_in(state.rng, state.step)
+        video = frames_to_model(video_uint8)
+        (loss, parts), grads = jax.value_and_grad(loss_fn, has_aux=True)(state.params, state.rest, video, key)
+        updates, opt_state = tx.update(grads, state.opt_state, state.params)
+        params = optax.apply_updates(state.params, updates)
+        metrics = {"loss": loss, **parts, "psnr": psnr_from_mse(parts["mse"]), "grad_norm": optax.tree.norm(grads)}
+        return state.replace(params=params, opt_state=opt_state, step=state.step + 1), metrics
+
+    return jax.jit(step, donate_argnums=(0,))
+
+
+def psnr_from_mse(mse_pm1: jax.Array) -> jax.Array:
+    """PSNR in dB of a mean squared error measured on [-1, 1] images (peak-to-peak 2)."""
+    return 10.0 * jnp.log10(4.0 / jnp.maximum(mse_pm1, 1e-12))
+
+
+def make_reconstruct(graphdef: nnx.GraphDef):
+    """-> jitted ``reconstruct(params, rest, video uint8 (B, T, H, W, 3)) -> uint8`` through the posterior
+    mean (what the world model uses), clipped and quantised like generated frames."""
+
+    def reconstruct(params, rest, video_uint8):
+        vae = nnx.merge(graphdef, params, rest)
+        mu, _ = vae.encode_moments(frames_to_model(video_uint8))
+        recon = jnp.clip(vae.decode_raw(mu), -1.0, 1.0)
+        return jnp.clip((recon + 1.0) * 127.5, 0.0, 255.0).astype(jnp.uint8)
+
+    return jax.jit(reconstruct)
+
+
+def psnr_uint8(a: np.ndarray, b: np.ndarray) -> float:
+    """PSNR in dB between two uint8 arrays (peak 255), over all elements."""
+    mse = np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2)
+    return float(10.0 * np.log10(255.0 ** 2 / max(mse, 1e-12)))
+
+
+def latent_statistics(graphdef: nnx.GraphDef, params, rest, clips_uint8: list[np.ndarray]
+                      ) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """Per-channel mean and std of the posterior means over ``clips_uint8`` (each (B, T, H, W, 3))."""
+
+    @jax.jit
+    def moments(video_uint8):
+        mu, _ = nnx.merge(graphdef, params, rest).encode_moments(frames_to_model(video_uint8))
+        flat = mu.reshape(-1, mu.shape[-1]).astype(jnp.float32)
+        return flat.sum(0), jnp.square(flat).sum(0), flat.shape[0]
+
+    total, total_sq, count = 0.0, 0.0, 0
+    for clip in clips_uint8:
+        s, sq, n = moments(jnp.asarray(clip))
+        total, total_sq, count = total + np.asarray(s, np.float64), total_sq + np.asarray(sq, np.float64), count + int(n)
+    if count == 0:
+        raise ValueError("latent_statistics: no clips given")
+    mean = total / count
+    std = np.sqrt(np.maximum(total_sq / count - mean ** 2, 1e-12))
+    return tuple(float(m) for m in mean), tuple(float(s) for s in std)
