@@ -23,7 +23,14 @@ from pathlib import Path
 import numpy as np
 
 from training import data as D
-from training.samples import contact_sheet, psnr_per_frame, rollout, side_by_side, write_mp4, write_png
+from training.samples import (
+    contact_sheet,
+    psnr_per_frame,
+    rollout,
+    side_by_side,
+    write_mp4,
+    write_png,
+)
 
 
 def _segments(dataset, num_frames: int, count: int, seed: int) -> dict[str, np.ndarray] | None:
@@ -57,7 +64,7 @@ def evaluate(model_dir: str | Path, data_dir: str | Path, out_dir: str | Path, n
     score = lambda x: psnr_per_frame(x, obs)[:, 1:]  # (B, T-1, P): frames after the given one
     per_player = lambda x: [float(v) for v in score(x).mean(axis=(0, 1))]
     result["rollout"] = {
-        "segments": int(len(obs)), "steps": steps, "frames": int(obs.shape[1]),
+        "segments": len(obs), "steps": steps, "frames": int(obs.shape[1]),
         "psnr_model_db": float(score(gen).mean()), "psnr_copy_last_frame_db": float(score(copy).mean()),
         "psnr_zero_actions_db": float(score(gen_zero).mean()),
         "psnr_model_per_player_db": per_player(gen), "psnr_zero_actions_per_player_db": per_player(gen_zero),
@@ -84,7 +91,7 @@ def evaluate(model_dir: str | Path, data_dir: str | Path, out_dir: str | Path, n
         p = psnr_per_frame(g, long["obs"])  # (B, T, P)
         idx = np.arange(k, g.shape[1], k * 10)  # every 10 steps
         result["long_rollout"] = {
-            "segments": int(len(g)), "steps": long_steps,
+            "segments": len(g), "steps": long_steps,
             "step": [int(i // k) for i in idx],
             "psnr_db": [float(p[:, i].mean()) for i in idx],
             "pixel_mean_generated": [float(g[:, i].mean()) for i in idx],

@@ -16,7 +16,7 @@ Shapes are the DiT's stream layout (``dit.py``): x0 (B, P, F, h, w, C), t (B, P,
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp

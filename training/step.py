@@ -18,7 +18,8 @@ run is deterministic given the seed and resumes exactly from a checkpointed stat
 from __future__ import annotations
 
 import math
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -67,7 +68,7 @@ class TrainState:
 
     @classmethod
     def create(cls, model: nnx.Module, tx: optax.GradientTransformation, rng: int | jax.Array
-               ) -> tuple[nnx.GraphDef, "TrainState"]:
+               ) -> tuple[nnx.GraphDef, TrainState]:
         """Split ``model`` once -> (graphdef, state). The state owns copies of the parameters, so donating
         it to the train step never invalidates ``model``'s own arrays."""
         graphdef, params, rest = nnx.split(model, nnx.Param, ...)

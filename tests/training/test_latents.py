@@ -46,7 +46,7 @@ def clips(root, cfg, modules, tmp_path_factory):
 
 def test_snap_start_puts_the_first_frame_on_the_anchor_grid():
     assert [snap_start(s, 4) for s in range(-1, 9)] == [-1, -1, -1, -1, 3, 3, 3, 3, 7, 7]
-    assert all((snap_start(s, 4) + 1) % 4 == 0 and snap_start(s, 4) <= s for s in range(0, 50))
+    assert all((snap_start(s, 4) + 1) % 4 == 0 and snap_start(s, 4) <= s for s in range(50))
 
 
 def test_clip_from_frame_zero_equals_encoding_the_clip(clips, modules, cfg):
