@@ -1,13 +1,17 @@
 """Attention kernel entry point, and the norms and Linear factory shared by the DiT and the action module.
 
 ``attention`` is the one place a kernel is chosen (``cfg.dit.attention_impl``); model code never
-branches on the platform. Norms compute their statistics in f32 and cast back (model-spec §2.1-§2.2).
+branches on the platform. ``attention_heads_major`` is the decode step's form (plain XLA ops: several
+key blocks, heads-major keys, no concatenation). Norms compute their statistics in f32 and cast back (model-spec §2.1-§2.2).
 """
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import nnx
 
 
@@ -23,6 +27,30 @@ def attention(q_BLNK: jax.Array, k_BSNK: jax.Array, v_BSNK: jax.Array, mask: jax
         mask = jnp.asarray(mask, bool)
         mask = mask.reshape((1,) * (4 - mask.ndim) + mask.shape)
     return jax.nn.dot_product_attention(q_BLNK, k_BSNK, v_BSNK, mask=mask, implementation=impl)
+
+
+def attention_heads_major(q_BLNK: jax.Array, blocks) -> jax.Array:
+    """Softmax attention (scale 1/sqrt(K)) over several key/value blocks at once -> (B, L, N, K).
+
+    ``blocks``: a sequence of ``(k_BNSK, v_BNSK, mask)``, keys/values heads-major (B, N, S_i, K) and
+    ``mask`` None or bool broadcastable to (B, N, L, S_i) (True = attend; an (S_i,) key-validity mask
+    or a (B, 1, 1, S_i) one). The softmax runs jointly over all blocks, so the result equals
+    ``attention`` over the concatenated keys, without building the concatenation; heads-major keys
+    feed the dots without a transpose on XLA:CPU (the decode step's cached keys and the context).
+    Logits and the softmax are f32. Every query row must allow at least one key.
+    """
+    scale = 1.0 / np.sqrt(q_BLNK.shape[-1])
+    q = q_BLNK.astype(jnp.float32) * scale
+    logits = []
+    for k_BNSK, _, mask in blocks:
+        s = jnp.einsum("blnk,bnsk->bnls", q, k_BNSK.astype(jnp.float32))
+        logits.append(s if mask is None else jnp.where(mask, s, -jnp.inf))
+    peak = functools.reduce(jnp.maximum, [jnp.max(s, axis=-1, keepdims=True) for s in logits])
+    probs = [jnp.exp(s - peak) for s in logits]
+    total = functools.reduce(jnp.add, [jnp.sum(p, axis=-1, keepdims=True) for p in probs])
+    y = functools.reduce(jnp.add, [jnp.einsum("bnls,bnsk->blnk", p, v_BNSK.astype(jnp.float32))
+                                   for p, (_, v_BNSK, _) in zip(probs, blocks)])
+    return (y / jnp.moveaxis(total, 1, 2)).astype(q_BLNK.dtype)
 
 
 def stop_gradient_where(x_BLNK: jax.Array, stop_L) -> jax.Array:

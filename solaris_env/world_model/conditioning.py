@@ -12,6 +12,10 @@ For one player with first frame ``first_frame_BHWC`` (in [-1, 1]) and F latent f
   mask channel c of latent frame i <-> padded frame tf * i + c. Only frame 0 is set, so latent frame 0 has
   all M channels = 1 and every later latent frame has all channels = 0.
 
+With ``cond_encoding="image"`` (VAEConfig; the tiny preset) ``img`` latent 0 is the encoding of the first
+frame alone (identical to the "video" layout's latent 0, by causality) and latents 1..F-1 are zero: one
+frame is encoded per start instead of 1 + tf * (F - 1), and per-clip training inputs can be cached.
+
 Latent frame 0 is still generated from noise (conditioned on this), not replaced by the encoding.
 
 Streaming (autoregressive rollouts of unbounded length): ``first_frame_cond_start`` encodes the first frame
@@ -54,7 +58,12 @@ def _with_mask(img_BFhwc: jax.Array, mask_FM: jax.Array) -> jax.Array:
 def first_frame_cond(vae: CausalVideoVAE, first_frame_BHWC: jax.Array, num_latent_frames: int) -> jax.Array:
     """First frame (B, H, W, 3) in [-1, 1] -> cond (B, F, h, w, M + z_dim), channels ordered [mask, img]."""
     tf = vae.cfg.temporal_factor
-    img = vae.encode(conditioning_video(first_frame_BHWC, vae.cfg.video_frames(num_latent_frames)))
+    if vae.cfg.cond_encoding == "image":
+        img0 = vae.encode(first_frame_BHWC[:, None])  # (B, 1, h, w, c)
+        img = jnp.concatenate([img0, jnp.zeros((img0.shape[0], num_latent_frames - 1) + img0.shape[2:],
+                                               img0.dtype)], axis=1)
+    else:
+        img = vae.encode(conditioning_video(first_frame_BHWC, vae.cfg.video_frames(num_latent_frames)))
     return _with_mask(img, first_frame_mask(num_latent_frames, tf))
 
 
@@ -79,5 +88,8 @@ def first_frame_cond_next(vae: CausalVideoVAE, state: FirstFrameCondState
     """Cond slice of the next latent frame (i >= 1): encodes only its tf gray frames against the cache."""
     B, H, W, C = state.frame_shape
     tf = vae.cfg.temporal_factor
+    if vae.cfg.cond_encoding == "image":
+        h, w, z = H // vae.cfg.spatial_factor, W // vae.cfg.spatial_factor, vae.cfg.z_dim
+        return _with_mask(jnp.zeros((B, 1, h, w, z), jnp.float32), jnp.zeros((1, tf), jnp.float32)), state
     img, cache = vae.encode_chunked(jnp.zeros((B, tf, H, W, C), jnp.float32), state.enc_cache)
     return _with_mask(img, jnp.zeros((1, tf), jnp.float32)), state.replace(enc_cache=cache)

@@ -14,6 +14,7 @@ import dataclasses
 from dataclasses import dataclass, field
 
 MULTIPLAYER_METHODS = ("attn", "concat")
+COND_ENCODINGS = ("video", "image")
 
 
 def _require(cond: bool, msg: str) -> None:
@@ -124,6 +125,14 @@ class VAEConfig:
     num_res_blocks: int = 2
     temporal_downsample: tuple[bool, ...] = (False, True, True)
     middle_attention: bool = True
+    # Decoder stage widths are decoder_base_dim * dim_mult[i]; 0 = base_dim (the Wan/solaris layout).
+    # A narrower decoder makes the streaming env step cheaper (the decoder dominates it on CPU).
+    decoder_base_dim: int = 0
+    # How the first-frame conditioning latents are encoded (conditioning.py): "video" = Wan i2v, the
+    # video [first frame, gray, gray, ...] (latents 1.. see the gray frames; ~1 + 4 * 21 frames encoded
+    # per start for solaris); "image" = only latent 0 carries the first frame's encoding, later
+    # conditioning latents are 0 (one frame encoded per start: cheap resets and cacheable training data).
+    cond_encoding: str = "video"
     # Per-channel latent normalisation z = (mu - mean) / std; empty = identity (set after training).
     latent_mean: tuple[float, ...] = ()
     latent_std: tuple[float, ...] = ()
@@ -136,6 +145,14 @@ class VAEConfig:
                  f"{len(self.dim_mult) - 1}")
         _require(len(self.latent_mean) in (0, self.z_dim) and len(self.latent_std) == len(self.latent_mean),
                  f"latent_mean/std must both be empty or have z_dim={self.z_dim} entries")
+        _require(self.cond_encoding in COND_ENCODINGS,
+                 f"cond_encoding must be one of {COND_ENCODINGS}, got {self.cond_encoding!r}")
+        _require(self.decoder_base_dim >= 0, f"decoder_base_dim must be >= 0 (0 = base_dim), got {self.decoder_base_dim}")
+
+    @property
+    def decoder_dim(self) -> int:
+        """Base width of the decoder stages: ``decoder_base_dim``, or ``base_dim`` when it is 0."""
+        return self.decoder_base_dim or self.base_dim
 
     @property
     def spatial_factor(self) -> int:
@@ -337,14 +354,17 @@ class WorldModelConfig:
         ~2x faster than patch 1 (64 tokens) at the same width, which leaves room for stage 4.
         VAE: the decoder dominates an env step (benchmarks/model_step.py). Measured decode_step of one
         latent frame for 2 players (8 frames of 64x64): base 32 / mult (1,2,2,4) 16.8 GFLOP, 130 ms;
-        base 16 / mult (1,2,4,4) 5.3 GFLOP, 47 ms (2.5 M params) -- chosen; base 12 / (1,2,4,8) 3.4 GFLOP."""
+        base 16 / mult (1,2,4,4) 5.3 GFLOP, 47 ms (2.5 M params); base 12 / (1,2,4,8) 3.4 GFLOP. Encoder base 16 /
+        (1,2,4,4); decoder (decoder_base_dim) with the same mult: 16 -> 5.25 GFLOP, 49 ms; 12 -> 2.98 GFLOP, 38 ms;
+        8 -> 1.35 GFLOP, 19 ms (0.39 M decoder params) -- chosen, to fit the 20 env steps/s budget."""
         kw = dict(
             name="tiny", frame_height=64, frame_width=64,
             dit=DiTConfig(dim=256, num_layers=8, num_heads=4, ffn_dim=1024, window=6),
             action=ActionConfig(keyboard_embed_dim=64, mouse_hidden_dim=256, keyboard_hidden_dim=256, num_heads=4,
                                 rope_dims=(8, 28, 28), num_action_blocks=4),
             vae=VAEConfig(base_dim=16, z_dim=16, dim_mult=(1, 2, 4, 4), num_res_blocks=1,
-                          temporal_downsample=(False, True, True), middle_attention=False),
+                          temporal_downsample=(False, True, True), middle_attention=False, decoder_base_dim=8,
+                          cond_encoding="image"),
             image_encoder=ImageEncoderConfig(image_size=64, patch_size=8, width=128, num_layers=2, num_heads=4,
                                              blocks_applied=2, proj_dim=0),
         )

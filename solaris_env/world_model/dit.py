@@ -26,7 +26,9 @@ a rolling cache (``kv_cache``).
 
 from __future__ import annotations
 
+import functools
 import math
+from collections.abc import Callable
 from typing import NamedTuple
 
 import jax
@@ -36,7 +38,8 @@ from flax import nnx
 
 from solaris_env.world_model import kv_cache, masks, rope
 from solaris_env.world_model.action_module import ActionModule, action_windows, padded_action_length
-from solaris_env.world_model.attention import RMSNorm, attention, dense, layer_norm, stop_gradient_where
+from solaris_env.world_model.attention import (RMSNorm, attention, attention_heads_major, dense, layer_norm,
+                                               stop_gradient_where)
 from solaris_env.world_model.config import WorldModelConfig
 
 # ---------------------------------------------------------------------------------------------
@@ -107,24 +110,76 @@ def _run_if(pred: jax.Array, module: nnx.Module, run, skip, *operands):
                         state, *operands)
 
 
-def _scan_layers(blocks: nnx.Module, step, carry, per_layer):
-    """Scan ``step(block, carry, layer_inputs) -> (carry, layer_outputs)`` over the stacked layer axis."""
+def _scan_layers(blocks: nnx.Module, step, carry, per_layer, remat: bool = False, unroll: bool = False):
+    """Scan ``step(block, carry, layer_inputs) -> (carry, layer_outputs)`` over the stacked layer axis.
+    ``remat``: under differentiation keep only each layer's input and recompute the layer in the backward
+    pass (``jax.checkpoint``); no effect on forward-only calls. ``unroll``: straight-line code instead of
+    a loop (same result; for XLA's cost analysis, which counts a loop body once)."""
     graphdef, state = nnx.split(blocks)
 
     def body(c, xs):
         layer_state, layer_inputs = xs
         return step(nnx.merge(graphdef, layer_state), c, layer_inputs)
 
-    return jax.lax.scan(body, carry, (state, per_layer))
+    return jax.lax.scan(jax.checkpoint(body, prevent_cse=False) if remat else body, carry, (state, per_layer),
+                        unroll=unroll)
+
+
+def _teacher_forcing_band(num_frames: int, window: int) -> tuple[np.ndarray, np.ndarray]:
+    """The keys a frame of ``[clean ; noisy]`` may see, as a band: for frame i the key frames are clean
+    ``i-band+1 .. i`` (band = min(W, F); indices clipped at 0) then noisy ``i``.
+
+    Returns (clean_idx (F, band) int, mask (F, 2, band + 1) bool: [query frame, query half, key slot]),
+    read off ``masks.teacher_forcing_frame_mask`` (checked to hold every allowed pair)."""
+    f, band = num_frames, min(window, num_frames)
+    dense = masks.teacher_forcing_frame_mask(f, window)  # (2F, 2F) over [clean ; noisy]
+    clean = np.arange(f)[:, None] - band + 1 + np.arange(band)[None]  # (F, band), < 0 = before frame 0
+    keys = np.concatenate([np.maximum(clean, 0), f + np.arange(f)[:, None]], axis=1)  # (F, band + 1)
+    valid = np.concatenate([clean >= 0, np.ones((f, 1), bool)], axis=1)
+    rows = np.arange(2)[None, :] * f + np.arange(f)[:, None]  # (F, 2) query rows
+    band_mask = dense[rows[:, :, None], keys[:, None, :]] & valid[:, None, :]
+    if band_mask.sum() != dense.sum():
+        raise AssertionError("teacher-forcing mask reaches outside the band")  # cannot happen for this mask
+    return np.maximum(clean, 0), band_mask
+
+
+def _teacher_forcing_attention(q_BLNK, k_BLNK, v_BLNK, num_frames: int, window: int, block: int, impl: str):
+    """Self-attention over ``[clean ; noisy]`` (L = 2 * F * block tokens) under the teacher-forcing mask,
+    computed frame by frame against its band of <= W clean frames plus its own noisy frame: O(F * W)
+    scores and mask instead of O(F^2); the same result as ``attention`` with the dense token mask."""
+    b, _, n, kd = q_BLNK.shape
+    f = num_frames
+    clean_idx, band_mask = _teacher_forcing_band(f, window)
+    frames = lambda a: a.reshape(b, 2, f, block, n, kd)  # (B, half, F, block, N, K)
+
+    def banded(a_BLNK):  # -> (B, F, (band + 1) * block, N, K): clean band then own noisy frame
+        a = frames(a_BLNK)
+        both = jnp.concatenate([a[:, 0][:, clean_idx], a[:, 1][:, :, None]], axis=2)
+        return both.reshape(b, f, -1, n, kd)
+
+    q = frames(q_BLNK).transpose(0, 2, 1, 3, 4, 5).reshape(b, f, 2 * block, n, kd)  # both halves of frame i
+    mask = jnp.repeat(jnp.repeat(jnp.asarray(band_mask), block, axis=1), block, axis=2)[:, None]  # (F, 1, 2blk, S)
+    y = jax.vmap(lambda q_, k_, v_: attention(q_, k_, v_, mask, impl))(q, banded(k_BLNK), banded(v_BLNK))
+    return y.reshape(b, f, 2, block, n, kd).transpose(0, 2, 1, 3, 4, 5).reshape(q_BLNK.shape)
 
 
 class _Conditioning(NamedTuple):
     """Per-forward inputs every block reads (constant across layers)."""
     e0_BPF6D: jax.Array  # per-(player, frame) adaLN modulation
     player_PD: jax.Array  # player embedding rows
-    context_BPMD: jax.Array  # projected image tokens
+    context_BPMD: jax.Array | None  # projected image tokens (None when cross-attention K/V come precomputed)
     mouse_BPFWA: jax.Array  # action windows per latent frame
     keyboard_BPFWA: jax.Array
+
+
+class ContextKV(NamedTuple):
+    """Cross-attention keys/values of the image context for every layer (``WorldDiT.context_kv``).
+
+    They depend only on the context (the first frames), so a stream computes them once per world
+    instead of re-projecting the context in every DiT pass.
+    """
+    k_LBPNMK: jax.Array  # (layers, B, P, N, M, K): normed keys, heads-major (read by the dots as they are)
+    v_LBPNMK: jax.Array  # (layers, B, P, N, M, K)
 
 
 class _SequencePlan(NamedTuple):
@@ -135,6 +190,7 @@ class _SequencePlan(NamedTuple):
     frame_mask: jax.Array | None  # (F, F) action-module mask; None = full
     kv_stop_F: jax.Array | None  # frames whose keys/values get no gradient
     kv_stop_L: jax.Array | None
+    attend: Callable | None = None  # (q, k, v) -> y replacing the dense token mask (teacher forcing)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -176,26 +232,46 @@ class SelfAttention(_QKVProjection):
         k = rope.apply_rope(self._project(x_BLD, self.norm_k, self.k), angles_LJ)
         return q, k, self._heads(self.v(x_BLD))
 
-    def __call__(self, x_BLD: jax.Array, angles_LJ: jax.Array, mask_LL, kv_stop_L=None) -> jax.Array:
+    def __call__(self, x_BLD: jax.Array, angles_LJ: jax.Array, mask_LL, kv_stop_L=None, attend=None) -> jax.Array:
         q, k, v = self._qkv(x_BLD, angles_LJ)
         k, v = stop_gradient_where(k, kv_stop_L), stop_gradient_where(v, kv_stop_L)
-        return self._out(attention(q, k, v, mask_LL, self.impl))
+        return self._out(attention(q, k, v, mask_LL, self.impl) if attend is None else attend(q, k, v))
 
     def decode(self, x_BLD: jax.Array, angles_LJ: jax.Array, cache: kv_cache.KVCache):
-        """Append this step's (post-RoPE) keys to ``cache`` and attend to all valid slots."""
+        """Append this step's (post-RoPE) keys to the heads-major ``cache`` and attend to all valid slots.
+
+        The attention reads the old cache's kept slots and the new keys as two blocks
+        (``attention_heads_major``), so a pass whose updated cache is discarded never builds it."""
         q, k, v = self._qkv(x_BLD, angles_LJ)
-        cache = kv_cache.update(cache, k, v)
-        y = attention(q, cache.k, cache.v, kv_cache.valid_mask(cache), self.impl)
-        return self._out(y), cache
+        k_BNLK, v_BNLK = k.transpose(0, 2, 1, 3), v.transpose(0, 2, 1, 3)
+        kept = kv_cache.kept_mask(cache, k_BNLK.shape[2])[..., None, None, :]  # (S,) or (B, S) -> (.., 1, 1, S)
+        kept = kept if kept.ndim == 3 else kept[:, None]
+        y = attention_heads_major(q, [(cache.k, cache.v, kept), (k_BNLK, v_BNLK, None)])
+        return self._out(y), kv_cache.update(cache, k_BNLK, v_BNLK)
 
 
 class CrossAttention(_QKVProjection):
-    """Per-player attention from the tokens to that player's image-context tokens (no mask, no RoPE)."""
+    """Per-player attention from the tokens to that player's image-context tokens (no mask, no RoPE).
+
+    ``kv`` (the normed keys and values of the context) depends only on the context, so a stream can
+    compute it once per world (``WorldDiT.context_kv``) and ``attend`` with it in every pass.
+    """
+
+    def kv(self, context_BMD: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """-> (k, v), each (B, M, N, K)."""
+        return self._project(context_BMD, self.norm_k, self.k), self._heads(self.v(context_BMD))
+
+    def attend(self, x_BLD: jax.Array, k_BMNK: jax.Array, v_BMNK: jax.Array) -> jax.Array:
+        q = self._project(x_BLD, self.norm_q, self.q)
+        return self._out(attention(q, k_BMNK.astype(q.dtype), v_BMNK.astype(q.dtype), None, self.impl))
+
+    def attend_heads_major(self, x_BLD: jax.Array, k_BNMK: jax.Array, v_BNMK: jax.Array) -> jax.Array:
+        """``attend`` with heads-major keys/values (B, N, M, K) (the decode step's form)."""
+        q = self._project(x_BLD, self.norm_q, self.q)
+        return self._out(attention_heads_major(q, [(k_BNMK, v_BNMK, None)]))
 
     def __call__(self, x_BLD: jax.Array, context_BMD: jax.Array) -> jax.Array:
-        q = self._project(x_BLD, self.norm_q, self.q)
-        k = self._project(context_BMD, self.norm_k, self.k)
-        return self._out(attention(q, k, self._heads(self.v(context_BMD)), None, self.impl))
+        return self.attend(x_BLD, *self.kv(context_BMD))
 
 
 class DiTBlock(nnx.Module):
@@ -231,11 +307,12 @@ class DiTBlock(nnx.Module):
         """Player embedding is already in x; returns the packed, modulated self-attention input."""
         return pack_players(modulate(layer_norm(x_BPFLD, self.eps), mods[0], mods[1]))
 
-    def _cross_and_actions_input(self, x_BPFLD, y_BLD, mods, cond: _Conditioning) -> jax.Array:
+    def _cross_and_actions_input(self, x_BPFLD, y_BLD, mods, cross) -> jax.Array:
+        """Self-attention residual, then cross-attention ``cross``: (B*P, F*L, D) -> (B*P, F*L, D)."""
         b, p, f, s, d = x_BPFLD.shape
         x_BPFLD = x_BPFLD + unpack_players(y_BLD, p, f) * mods[2]
         h = x_BPFLD if self.norm3 is None else self.norm3(x_BPFLD)
-        y = self.cross_attn(h.reshape(b * p, f * s, d), _fold(cond.context_BPMD))
+        y = cross(h.reshape(b * p, f * s, d))
         return x_BPFLD + y.reshape(x_BPFLD.shape)
 
     def _ffn_residual(self, x_BPFLD, mods) -> jax.Array:
@@ -246,8 +323,10 @@ class DiTBlock(nnx.Module):
         """Whole-sequence block; ``layer`` (traced int) selects whether the action module runs."""
         mods = self._modulation(cond.e0_BPF6D)
         x_BPFLD = x_BPFLD + cond.player_PD[None, :, None, None].astype(x_BPFLD.dtype)
-        y = self.self_attn(self._attn_input(x_BPFLD, mods), plan.angles_LJ, plan.token_mask, plan.kv_stop_L)
-        x_BPFLD = self._cross_and_actions_input(x_BPFLD, y, mods, cond)
+        y = self.self_attn(self._attn_input(x_BPFLD, mods), plan.angles_LJ, plan.token_mask, plan.kv_stop_L,
+                           plan.attend)
+        kv = self.cross_attn.kv(_fold(cond.context_BPMD))
+        x_BPFLD = self._cross_and_actions_input(x_BPFLD, y, mods, lambda h: self.cross_attn.attend(h, *kv))
         b, p, f, s, d = x_BPFLD.shape
 
         def run_actions(module, x):
@@ -259,12 +338,14 @@ class DiTBlock(nnx.Module):
         return self._ffn_residual(x_BPFLD, mods)
 
     def decode(self, x_BP1LD: jax.Array, cond: _Conditioning, angles_LJ: jax.Array, action_angles_1J: jax.Array,
-               layer: jax.Array, cache: kv_cache.DiTCache):
-        """One latent frame against this layer's caches -> (x_BP1LD, updated caches)."""
+               layer: jax.Array, cache: kv_cache.DiTCache, cross_kv: tuple[jax.Array, jax.Array]):
+        """One latent frame against this layer's caches -> (x_BP1LD, updated caches); ``cross_kv`` = this
+        layer's context keys/values, heads-major, each (B*P, N, M, K)."""
         mods = self._modulation(cond.e0_BPF6D)
         x_BP1LD = x_BP1LD + cond.player_PD[None, :, None, None].astype(x_BP1LD.dtype)
         y, self_cache = self.self_attn.decode(self._attn_input(x_BP1LD, mods), angles_LJ, cache.self_attn)
-        x_BP1LD = self._cross_and_actions_input(x_BP1LD, y, mods, cond)
+        x_BP1LD = self._cross_and_actions_input(x_BP1LD, y, mods,
+                                                lambda h: self.cross_attn.attend_heads_major(h, *cross_kv))
         b, p, f, s, d = x_BP1LD.shape
 
         def run_actions(module, x, mouse_cache, keyboard_cache):
@@ -371,11 +452,15 @@ class WorldDiT(nnx.Module):
             kv_stop_F=None)
 
     def forward_teacher_forcing(self, clean, noisy, t_clean, t_noisy, cond, context, mouse, keyboard, *,
-                                kv_grad: bool = True) -> jax.Array:
+                                kv_grad: bool = True, remat: bool = True) -> jax.Array:
         """One pass over ``[clean ; noisy]`` with the teacher-forcing mask and per-half RoPE (model-spec
         §6.3). Noisy frame i sees clean frames (i-W, i) and itself, exactly like a cached decode step.
         ``kv_grad=False`` stops the gradient through the clean half's keys/values. Returns v of the
-        noisy half, shaped like ``noisy``."""
+        noisy half, shaped like ``noisy``.
+
+        Memory (Checkpointed Self Forcing differentiates this pass): the self-attention runs per frame
+        against its band of W clean frames + itself (``_teacher_forcing_attention``, no (2FL)^2 mask or
+        scores), and with ``remat`` the backward pass keeps only each layer's input."""
         num_frames = self._validate(noisy, t_noisy, cond, context, mouse, keyboard)
         if clean.shape != noisy.shape or t_clean.shape != t_noisy.shape:
             raise ValueError(f"clean {clean.shape} / t_clean {t_clean.shape} must match noisy {noisy.shape} / "
@@ -386,7 +471,10 @@ class WorldDiT(nnx.Module):
             jnp.concatenate([clean, noisy], axis=2), jnp.concatenate([t_clean, t_noisy], axis=2), twice(cond),
             context, twice(self._windows(mouse, num_frames)), twice(self._windows(keyboard, num_frames)),
             rope.teacher_forcing_frame_positions(num_frames),
-            masks.teacher_forcing_frame_mask(num_frames, self.cfg.dit.window), kv_stop_F)
+            masks.teacher_forcing_frame_mask(num_frames, self.cfg.dit.window), kv_stop_F,
+            attend=functools.partial(_teacher_forcing_attention, num_frames=num_frames, window=self.cfg.dit.window,
+                                     block=noisy.shape[1] * math.prod(self._grid()), impl=self.cfg.dit.attention_impl),
+            remat=remat)
         return v[:, :, num_frames:]
 
     def decode_step(self, x, t, cond, context, mouse, keyboard, cache: kv_cache.DiTCache,
@@ -396,23 +484,100 @@ class WorldDiT(nnx.Module):
         Shapes as the class docstring with F = 1; ``mouse``/``keyboard`` are this frame's windows
         (B, P, action_window, A) (``action_module.window_at``). Returns ``(v, new_cache)``: the cache
         now holds this frame's keys/values — keep it for the commit pass (clean latent, t = 0),
-        discard it for denoising passes.
+        discard it for denoising passes. Every layer projects the context here; a stream that runs many
+        passes against the same context uses ``decode_step_cached`` with ``context_kv(context)``.
         """
         self._validate(x, t, cond, context, mouse, keyboard, expect_frames=1)
-        c, d = self.cfg, self.cfg.dit
-        gh, gw = self._grid()
         cond_in, tokens, e = self._prepare(x, t, cond, context, mouse[:, :, None], keyboard[:, :, None])
-        angles = rope.rope_3d_angles(d.rope_split, d.rope_theta, 1, gh, gw, x.shape[1], start_frame)
-        action_angles = rope.temporal_rope_angles(c.action.rope_dims, c.action.rope_theta, 1, start_frame)
+        def project(block, _):
+            k, v = block.cross_attn.kv(_fold(cond_in.context_BPMD))
+            return k.transpose(0, 2, 1, 3), v.transpose(0, 2, 1, 3)
 
-        def step(block, h, per_layer):
-            layer, layer_cache = per_layer
-            return block.decode(h, cond_in, angles, action_angles, layer, layer_cache)
+        return self._decode_layers(tokens, e, cond_in, cache, start_frame, project, None, keep_cache=True,
+                                   unroll=False)
 
-        tokens, cache = _scan_layers(self.blocks, step, tokens, (jnp.arange(d.num_layers), cache))
-        return self._unpatchify(self.head(tokens, e)), cache
+    def context_kv(self, context) -> ContextKV:
+        """The cross-attention keys/values of every layer for ``context`` (B, P, M, context_width): what
+        ``decode_step`` computes in every pass, computed once (``img_emb`` then each layer's k/v)."""
+        c = self.cfg
+        if context.ndim != 4 or context.shape[1] != c.stream_players or context.shape[3] != c.context_width:
+            raise ValueError(f"context has shape {context.shape}; expected (B, {c.stream_players}, M, "
+                             f"{c.context_width})")
+        b, p = context.shape[:2]
+        projected = _fold(self.img_emb(context.astype(jnp.dtype(c.dit.dtype))))  # (B*P, M, D)
+
+        def step(block, carry, _):
+            heads_major = lambda a: a.transpose(0, 2, 1, 3).reshape((b, p) + a.shape[2:3] + a.shape[1:2] + a.shape[3:])
+            k, v = block.cross_attn.kv(projected)  # (B*P, M, N, K)
+            return carry, (heads_major(k), heads_major(v))
+
+        _, (k, v) = _scan_layers(self.blocks, step, None, jnp.arange(c.dit.num_layers))
+        return ContextKV(k, v)
+
+    def decode_step_cached(self, x, t, cond, context_kv: ContextKV, mouse, keyboard, cache: kv_cache.DiTCache,
+                           start_frame: int | jax.Array, *, unroll: bool = False):
+        """``decode_step`` with the context given as its precomputed per-layer keys/values
+        (``context_kv(context)``): the same result up to float rounding, without re-projecting the
+        context in every pass. Returns ``(v, new_cache)`` (a commit pass keeps the cache). ``unroll``
+        traces the layers as straight-line code (same result; for XLA's cost analysis)."""
+        cond_in, tokens, e = self._prepare_cached(x, t, cond, context_kv, mouse, keyboard)
+        return self._decode_layers(tokens, e, cond_in, cache, start_frame, self._fold_kv,
+                                   (context_kv.k_LBPNMK, context_kv.v_LBPNMK), keep_cache=True, unroll=unroll)
+
+    def denoise_step_cached(self, x, t, cond, context_kv: ContextKV, mouse, keyboard, cache: kv_cache.DiTCache,
+                            start_frame: int | jax.Array, *, unroll: bool = False) -> jax.Array:
+        """The velocity of ``decode_step_cached`` alone (a denoising pass: the cache update is discarded,
+        so it is never built)."""
+        cond_in, tokens, e = self._prepare_cached(x, t, cond, context_kv, mouse, keyboard)
+        return self._decode_layers(tokens, e, cond_in, cache, start_frame, self._fold_kv,
+                                   (context_kv.k_LBPNMK, context_kv.v_LBPNMK), keep_cache=False, unroll=unroll)[0]
 
     # -- internals -----------------------------------------------------------------------------------
+    @staticmethod
+    def _fold_kv(block, kv):
+        return _fold(kv[0]), _fold(kv[1])
+
+    def _prepare_cached(self, x, t, cond, context_kv: ContextKV, mouse, keyboard):
+        """Shape checks and ``_prepare`` for the ``*_cached`` entry points (no context projection)."""
+        c = self.cfg
+        b, p = x.shape[:2]
+        want = (c.dit.num_layers, b, p, c.dit.num_heads, None, c.dit.head_dim)
+        for name, a in (("context_kv.k", context_kv.k_LBPNMK), ("context_kv.v", context_kv.v_LBPNMK)):
+            if a.ndim != 6 or any(w is not None and g != w for g, w in zip(a.shape, want)):
+                raise ValueError(f"{name} has shape {a.shape}; expected (layers, B, P, N, M, K) = "
+                                 f"{tuple('M' if w is None else w for w in want)}")
+        context_shape = jax.ShapeDtypeStruct((b, p, context_kv.k_LBPNMK.shape[4], c.context_width), jnp.float32)
+        self._validate(x, t, cond, context_shape, mouse, keyboard, expect_frames=1)
+        return self._prepare(x, t, cond, None, mouse[:, :, None], keyboard[:, :, None])
+
+    def _decode_layers(self, tokens, e, cond_in: _Conditioning, cache: kv_cache.DiTCache, start_frame,
+                       cross_kv_of, per_layer_kv, keep_cache: bool, unroll: bool):
+        """The layer scan of a decode step; ``cross_kv_of(block, per_layer_kv[layer])`` gives the layer's
+        heads-major cross-attention (k, v), each (B*P, N, M, K). Without ``keep_cache`` the updated
+        caches are not outputs of the scan (so XLA never builds them) and None is returned for them."""
+        c, d = self.cfg, self.cfg.dit
+        gh, gw = self._grid()
+        angles = rope.rope_3d_angles(d.rope_split, d.rope_theta, 1, gh, gw, tokens.shape[1], start_frame)
+        action_angles = rope.temporal_rope_angles(c.action.rope_dims, c.action.rope_theta, 1, start_frame)
+
+        # Per-layer caches and context K/V are read with a dynamic index (and the caches written back
+        # in place) instead of being scanned as xs/ys: under a vmap over worlds, scanned xs/ys would be
+        # transposed to layer-major as a whole on every call.
+        at = lambda tree, i: jax.tree.map(lambda a: jax.lax.dynamic_index_in_dim(a, i, 0, keepdims=False), tree)
+
+        def step(block, carry, layer):
+            h, caches = carry
+            h, new_cache = block.decode(h, cond_in, angles, action_angles, layer, at(cache, layer),
+                                        cross_kv_of(block, at(per_layer_kv, layer)))
+            if keep_cache:
+                caches = jax.tree.map(lambda a, n: jax.lax.dynamic_update_index_in_dim(a, n.astype(a.dtype), layer, 0),
+                                      caches, new_cache)
+            return (h, caches), None
+
+        (tokens, new_caches), _ = _scan_layers(self.blocks, step, (tokens, cache if keep_cache else None),
+                                               jnp.arange(d.num_layers), unroll=unroll)
+        return self._unpatchify(self.head(tokens, e)), new_caches
+
     def _grid(self) -> tuple[int, int]:
         _, ph, pw = self.cfg.dit.patch_size
         return self.cfg.latent_height // ph, self.cfg.latent_width // pw
@@ -444,7 +609,8 @@ class WorldDiT(nnx.Module):
         return f
 
     def _prepare(self, x, t, cond, context, mouse_BPFWA, keyboard_BPFWA):
-        """Patchify, embed time/context/players -> (conditioning, tokens_BPFLD, e_BPFD)."""
+        """Patchify, embed time/context/players -> (conditioning, tokens_BPFLD, e_BPFD); ``context=None``
+        leaves the projected context out (the caller brings per-layer cross-attention K/V)."""
         b, p, f = x.shape[:3]
         dtype = jnp.dtype(self.cfg.dit.dtype)
         xc = jnp.concatenate([x, cond], axis=-1).astype(dtype)  # channel order: [x, mask, first-frame latent]
@@ -453,7 +619,8 @@ class WorldDiT(nnx.Module):
         e = self.time_embedding(sinusoidal_embedding(t, self.cfg.dit.freq_dim).astype(dtype))  # (B, P, F, D)
         e0 = self.time_projection(e).reshape(b, p, f, 6, -1)
         player = self.player_embed(jnp.arange(p))
-        cond_in = _Conditioning(e0, player, self.img_emb(context.astype(dtype)), mouse_BPFWA, keyboard_BPFWA)
+        projected = None if context is None else self.img_emb(context.astype(dtype))
+        cond_in = _Conditioning(e0, player, projected, mouse_BPFWA, keyboard_BPFWA)
         return cond_in, tokens, e
 
     def _sequence_plan(self, frame_pos_F, frame_mask, kv_stop_F, num_players: int) -> _SequencePlan:
@@ -469,14 +636,16 @@ class WorldDiT(nnx.Module):
             kv_stop_F, kv_stop_L)
 
     def _forward_sequence(self, x, t, cond, context, mouse_BPFWA, keyboard_BPFWA, frame_pos_F, frame_mask,
-                          kv_stop_F) -> jax.Array:
+                          kv_stop_F, attend=None, remat: bool = False) -> jax.Array:
         cond_in, tokens, e = self._prepare(x, t, cond, context, mouse_BPFWA, keyboard_BPFWA)
         plan = self._sequence_plan(frame_pos_F, frame_mask, kv_stop_F, x.shape[1])
+        if attend is not None:  # the self-attention brings its own mask; no dense token mask
+            plan = plan._replace(token_mask=None, attend=attend)
 
         def step(block, h, layer):
             return block(h, cond_in, plan, layer), None
 
-        tokens, _ = _scan_layers(self.blocks, step, tokens, jnp.arange(self.cfg.dit.num_layers))
+        tokens, _ = _scan_layers(self.blocks, step, tokens, jnp.arange(self.cfg.dit.num_layers), remat)
         return self._unpatchify(self.head(tokens, e))
 
     def _unpatchify(self, y_BPFLO: jax.Array) -> jax.Array:

@@ -1,9 +1,10 @@
 """Rolling key/value caches for the cached decode step (model-spec §5.2).
 
 A cache is plain data (``flax.struct.dataclass``); functions return new caches, nothing mutates.
-``KVCache`` holds ``k``/``v`` of shape ``(..., B, S, N, K)`` (S = cache slots) and ``length`` of shape
-``(...)``. The leading ``...`` is the layer axis of the DiT's stacked caches; inside a block the
-leading axis is gone and the same functions apply.
+``KVCache`` holds ``k``/``v`` of shape ``(..., B, S, N, K)`` (``layout="BSNK"``, S = cache slots) or
+``(..., B, N, S, K)`` (``layout="BNSK"``, heads-major: what an attention dot reads without a transpose)
+and ``length`` of shape ``(...)``. The leading ``...`` is the layer axis of the DiT's stacked caches;
+inside a block the leading axis is gone and the same functions apply.
 
 Rolling FIFO: ``update`` appends the new entries at the end and keeps the last S, so the newest entry
 is always in the last slot; ``length`` counts the valid (filled) slots, which are the *last* ``length``
@@ -15,12 +16,16 @@ Three caches per DiT (``DiTCache``), each with one entry per layer:
 
 | cache | k / v shape | slots |
 |---|---|---|
-| self_attn | (layers, B, cache_tokens, N, K) | window * stream players * tokens per frame (post-RoPE keys) |
+| self_attn | (layers, B, N, cache_tokens, K), heads-major | window * stream players * tokens per frame (post-RoPE keys) |
 | mouse | (layers, B * P * tokens, window, Na, Ka) | one per frame, per spatial location |
 | keyboard | (layers, B * P, window, Na, Ka) | one per frame |
 
 Mouse/keyboard caches exist for every layer (uniform scan) but only the first ``num_action_blocks``
 layers touch them; the others stay empty.
+
+``kept_mask`` tells which current slots stay valid after an update with n entries, so a pass that only
+*reads* "cache + new entries" (the denoising passes) can attend to the old cache and the new entries
+as two blocks without building the updated cache (``attention.attention_heads_major``).
 """
 
 from __future__ import annotations
@@ -32,15 +37,23 @@ from flax import struct
 from solaris_env.world_model.config import WorldModelConfig
 
 
+LAYOUTS = ("BSNK", "BNSK")
+
+
 @struct.dataclass
 class KVCache:
-    k: jax.Array  # (..., B, S, N, K)
-    v: jax.Array  # (..., B, S, N, K)
+    k: jax.Array  # (..., B, S, N, K) or, layout "BNSK", (..., B, N, S, K)
+    v: jax.Array  # same as k
     length: jax.Array  # (...) int32: valid slots, counted from the end
+    layout: str = struct.field(pytree_node=False, default="BSNK")
+
+    @property
+    def slot_axis(self) -> int:
+        return -3 if self.layout == "BSNK" else -2
 
     @property
     def size(self) -> int:
-        return self.k.shape[-3]
+        return self.k.shape[self.slot_axis]
 
 
 @struct.dataclass
@@ -51,11 +64,15 @@ class DiTCache:
 
 
 def empty_cache(lead_shape: tuple[int, ...], batch: int, slots: int, heads: int, head_dim: int,
-                dtype) -> KVCache:
-    """Zero K/V of shape lead_shape + (batch, slots, heads, head_dim), length 0."""
-    shape = tuple(lead_shape) + (batch, slots, heads, head_dim)
+                dtype, layout: str = "BSNK") -> KVCache:
+    """Zero K/V of shape lead_shape + (batch, slots, heads, head_dim) (``layout="BNSK"``: heads before
+    slots), length 0."""
+    if layout not in LAYOUTS:
+        raise ValueError(f"layout must be one of {LAYOUTS}, got {layout!r}")
+    inner = (batch, slots, heads, head_dim) if layout == "BSNK" else (batch, heads, slots, head_dim)
+    shape = tuple(lead_shape) + inner
     return KVCache(k=jnp.zeros(shape, dtype), v=jnp.zeros(shape, dtype),
-                   length=jnp.zeros(tuple(lead_shape), jnp.int32))
+                   length=jnp.zeros(tuple(lead_shape), jnp.int32), layout=layout)
 
 
 def init_cache(cfg: WorldModelConfig, batch: int, dtype=None) -> DiTCache:
@@ -65,7 +82,8 @@ def init_cache(cfg: WorldModelConfig, batch: int, dtype=None) -> DiTCache:
     players = cfg.stream_players
     a = cfg.action
     return DiTCache(
-        self_attn=empty_cache(layers, batch, cfg.cache_tokens, cfg.dit.num_heads, cfg.dit.head_dim, dtype),
+        self_attn=empty_cache(layers, batch, cfg.cache_tokens, cfg.dit.num_heads, cfg.dit.head_dim, dtype,
+                              layout="BNSK"),
         mouse=empty_cache(layers, batch * players * cfg.tokens_per_frame, cfg.dit.window, a.num_heads,
                           a.head_dim, dtype),
         keyboard=empty_cache(layers, batch * players, cfg.dit.window, a.num_heads, a.keyboard_head_dim, dtype),
@@ -73,16 +91,27 @@ def init_cache(cfg: WorldModelConfig, batch: int, dtype=None) -> DiTCache:
 
 
 def update(cache: KVCache, k_new: jax.Array, v_new: jax.Array) -> KVCache:
-    """Append ``k_new``/``v_new`` (..., B, n, N, K) and keep the last S slots; length saturates at S."""
-    if k_new.shape != v_new.shape or k_new.shape[:-3] != cache.k.shape[:-3] or \
-            k_new.shape[-2:] != cache.k.shape[-2:]:
-        raise ValueError(f"new k/v {k_new.shape}/{v_new.shape} do not fit cache {cache.k.shape}")
-    size, n_new = cache.size, k_new.shape[-3]
-    k = jnp.concatenate([cache.k, k_new.astype(cache.k.dtype)], axis=-3)[..., -size:, :, :]
-    v = jnp.concatenate([cache.v, v_new.astype(cache.v.dtype)], axis=-3)[..., -size:, :, :]
-    return KVCache(k=k, v=v, length=jnp.minimum(cache.length + n_new, size).astype(jnp.int32))
+    """Append ``k_new``/``v_new`` (..., B, n, N, K), or (..., B, N, n, K) for layout "BNSK", and keep the
+    last S slots; length saturates at S."""
+    axis = cache.slot_axis % cache.k.ndim
+    other = lambda shape: shape[:axis] + shape[axis + 1:]
+    if k_new.shape != v_new.shape or k_new.ndim != cache.k.ndim or other(k_new.shape) != other(cache.k.shape):
+        raise ValueError(f"new k/v {k_new.shape}/{v_new.shape} do not fit cache {cache.k.shape} "
+                         f"(layout {cache.layout})")
+    size, n_new = cache.size, k_new.shape[axis]
+    keep = lambda old, new: jax.lax.slice_in_dim(jnp.concatenate([old, new.astype(old.dtype)], axis=axis),
+                                                 n_new, n_new + size, axis=axis)
+    return KVCache(k=keep(cache.k, k_new), v=keep(cache.v, v_new),
+                   length=jnp.minimum(cache.length + n_new, size).astype(jnp.int32), layout=cache.layout)
 
 
 def valid_mask(cache: KVCache) -> jax.Array:
     """(..., S) bool: True for filled slots (the last ``length`` ones)."""
     return jnp.arange(cache.size) >= (cache.size - cache.length)[..., None]
+
+
+def kept_mask(cache: KVCache, n_new: int) -> jax.Array:
+    """(..., S) bool over the CURRENT slots: those still valid after ``update`` with ``n_new`` entries
+    (the oldest ``n_new`` slots are evicted). Attending to these slots plus the new entries equals
+    attending to ``update(cache, ...)`` under ``valid_mask``."""
+    return valid_mask(cache) & (jnp.arange(cache.size) >= n_new)

@@ -297,13 +297,13 @@ class Encoder(nnx.Module):
 class Decoder(nnx.Module):
     """latents (B, F, h, w, z_dim) -> video (B, T, H, W, 3), T = 1 + tf * (F - 1) from a stream start.
 
-    Stage i runs num_res_blocks + 1 ResBlocks at width base_dim * dim_mult[-1 - i]; every stage but the
+    Stage i runs num_res_blocks + 1 ResBlocks at width decoder_dim * dim_mult[-1 - i]; every stage but the
     last ends with an Upsample that halves the channels (so stage i > 0 starts at half the previous width).
     """
 
     def __init__(self, cfg: VAEConfig, *, rngs: nnx.Rngs):
         kw = dict(dtype=jnp.dtype(cfg.dtype), param_dtype=jnp.dtype(cfg.param_dtype), rngs=rngs)
-        dims = [cfg.base_dim * m for m in (cfg.dim_mult[-1], *cfg.dim_mult[::-1])]
+        dims = [cfg.decoder_dim * m for m in (cfg.dim_mult[-1], *cfg.dim_mult[::-1])]
         temporal_upsample = cfg.temporal_downsample[::-1]
         self.conv_in = CausalConv3d(cfg.z_dim, dims[0], (3, 3, 3), **kw)
         self.middle = nnx.List(_middle(dims[0], cfg.middle_attention, kw))

@@ -69,7 +69,7 @@ from flax import nnx, struct
 from solaris_env.world_model import kv_cache, sampler
 from solaris_env.world_model.conditioning import first_frame_cond_next, first_frame_cond_start
 from solaris_env.world_model.config import VAEConfig, WorldModelConfig, preset
-from solaris_env.world_model.dit import WorldDiT, from_stream, timesteps_to_stream, to_stream
+from solaris_env.world_model.dit import ContextKV, WorldDiT, from_stream, timesteps_to_stream, to_stream
 from solaris_env.world_model.image_encoder import ImageEncoder
 from solaris_env.world_model.vae import CausalVideoVAE
 
@@ -102,6 +102,8 @@ def encoder_receptive_field(vae: VAEConfig) -> int:
 def steady_cond_index(vae: VAEConfig) -> int:
     """First latent frame whose conditioning sees only gray frames (it equals every later one):
     latent i depends on video frames >= k*i - receptive_field, so the smallest i with k*i - rf >= 1."""
+    if vae.cond_encoding == "image":  # latents >= 1 are zero (conditioning.py)
+        return 1
     k = vae.temporal_factor
     return -(-(encoder_receptive_field(vae) + 1) // k)
 
@@ -145,6 +147,7 @@ class WorldState:
     frame_index_B: jax.Array  # (B,) int32: index of the next latent frame = its RoPE start frame
     actions_BPWA: jax.Array  # (B, P, W, A) f32: the last W actions (the left-padded history)
     context_BPMC: jax.Array  # (B, P, M, Ce): image-encoder tokens of the first frames
+    context_kv: ContextKV  # their cross-attention K/V for every DiT layer, leaves (B, layers, 1, P, N, M, K)
     cond_BPFhwC: jax.Array  # (B, P, Fc, h, w, Cc): conditioning of latent frames 0..Fc-1 (last = steady)
     dit_cache: kv_cache.DiTCache  # per-world rolling caches, leaves (B, layers, 1, ...)
     vae_cache: Any  # streaming VAE-decoder cache, leaves (B, P, ...)
@@ -168,9 +171,10 @@ class Programs:
     are the three parts of ``step`` (the benchmark times them separately).
     """
 
-    def __init__(self, cfg: WorldModelConfig, graphdefs: tuple):
+    def __init__(self, cfg: WorldModelConfig, graphdefs: tuple, *, unroll: bool = False):
         self.cfg = cfg
         self.graphdefs = graphdefs
+        self.unroll = unroll  # straight-line sampler steps and DiT layers (for XLA's cost analysis only)
         self.timesteps = sampler.ar_schedule(cfg.sampler)
         self.cond_frames = steady_cond_index(cfg.vae) + 1
 
@@ -179,17 +183,21 @@ class Programs:
     def _modules(self, params):
         return tuple(nnx.merge(g, p) for g, p in zip(self.graphdefs, params))
 
-    def _velocity(self, dit: WorldDiT, z_P1hwC, t, ws_parts, start):
-        """v of one latent frame and the cache including it: (v_P1hwC, new_cache)."""
+    def _dit_args(self, z_P1hwC, t, ws_parts, start):
+        """``WorldDiT.*_step_cached`` arguments for one world (DiT batch 1). ``ws_parts`` carries the
+        context as its per-layer cross-attention K/V (``WorldDiT.context_kv``, computed at init)."""
         cfg = self.cfg
-        cond, context, window, cache = ws_parts
+        cond, context_kv, window, cache = ws_parts
         kb = cfg.action.keyboard_dim
         p = z_P1hwC.shape[0]
         t_1P1 = timesteps_to_stream(cfg, jnp.full((1, p, 1), t, jnp.float32))
-        v, new_cache = dit.decode_step(
-            to_stream(cfg, z_P1hwC[None]), t_1P1, to_stream(cfg, cond[None]), to_stream(cfg, context[None]),
-            to_stream(cfg, window[None, :, :, kb:]), to_stream(cfg, window[None, :, :, :kb]), cache, start)
-        return from_stream(cfg, v)[0], new_cache
+        return (to_stream(cfg, z_P1hwC[None]), t_1P1, to_stream(cfg, cond[None]), context_kv,
+                to_stream(cfg, window[None, :, :, kb:]), to_stream(cfg, window[None, :, :, :kb]), cache, start)
+
+    def _velocity(self, dit: WorldDiT, z_P1hwC, t, ws_parts, start):
+        """v of one latent frame (a denoising pass: the cache is read, not updated): v_P1hwC."""
+        v = dit.denoise_step_cached(*self._dit_args(z_P1hwC, t, ws_parts, start), unroll=self.unroll)
+        return from_stream(self.cfg, v)[0]
 
     def _window(self, ws: WorldState, actions_PkA):
         """The rolling action buffer with this step's k actions appended: (P, W, A)."""
@@ -201,19 +209,20 @@ class Programs:
         window = self._window(ws, actions_PkA)
         index = jnp.minimum(ws.frame_index_B, self.cond_frames - 1)
         cond = jax.lax.dynamic_slice_in_dim(ws.cond_BPFhwC, index, 1, axis=1)  # (P, 1, h, w, Cc)
-        return cond, ws.context_BPMC, window, ws.dit_cache
+        return cond, ws.context_kv, window, ws.dit_cache
 
     def _sample(self, dit, parts, frame_key, start):
         cfg = self.cfg
         k_noise, k_renoise = jax.random.split(frame_key)
-        shape = (parts[1].shape[0], 1, cfg.latent_height, cfg.latent_width, cfg.latent_channels)
+        shape = (parts[0].shape[0], 1, cfg.latent_height, cfg.latent_width, cfg.latent_channels)
         z = jax.random.normal(k_noise, shape, jnp.float32)
-        denoise = lambda x, t: self._velocity(dit, x, t, parts, start)[0]  # cache update discarded
-        return sampler.sample_frame(denoise, z, k_renoise, self.timesteps, cfg.sampler.num_train_timesteps)
+        denoise = lambda x, t: self._velocity(dit, x, t, parts, start)
+        return sampler.sample_frame(denoise, z, k_renoise, self.timesteps, cfg.sampler.num_train_timesteps,
+                                    unroll=self.unroll)
 
     def _commit(self, dit, parts, x0_P1hwC, start):
         """Commit pass at t = 0 on the clean latent: writes this frame's keys/values into the caches."""
-        return self._velocity(dit, x0_P1hwC, 0.0, parts, start)[1]
+        return dit.decode_step_cached(*self._dit_args(x0_P1hwC, 0.0, parts, start), unroll=self.unroll)[1]
 
     def _denoise_world(self, params, ws: WorldState, actions_PkA):
         dit = self._modules(params)[0]
@@ -253,16 +262,18 @@ class Programs:
         dit, vae, encoder = self._modules(params)
         first = frames_to_model(first_PHW3_uint8)
         context = encoder(first)  # (P, M, Ce)
+        context_kv = dit.context_kv(to_stream(cfg, context[None]))  # leaves (layers, 1, P, N, M, K)
         cond = self._cond_table(vae, first)
         actions = jnp.repeat(first_actions_PA.astype(jnp.float32)[:, None], cfg.action_window, axis=1)
         cache = kv_cache.init_cache(cfg, 1)  # batch 1: the DiT sees one world at a time
         start = jnp.zeros((), jnp.int32)
-        parts = (cond[:, :1], context, actions, cache)
+        parts = (cond[:, :1], context_kv, actions, cache)
         key, frame_key = jax.random.split(key)
         x0 = self._sample(dit, parts, frame_key, start)
         cache = self._commit(dit, parts, x0, start)
         video, vae_cache = vae.decode_step(x0, None)  # latent frame 0 -> 1 video frame
         return WorldState(key_B=key, frame_index_B=start + 1, actions_BPWA=actions, context_BPMC=context,
+                          context_kv=context_kv,
                           cond_BPFhwC=cond, dit_cache=cache, vae_cache=vae_cache, latent_BP1hwC=x0,
                           frame0_BPHW3=frames_to_uint8(video[:, 0]))
 

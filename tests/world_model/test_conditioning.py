@@ -106,3 +106,30 @@ def test_solaris_cond_has_the_dit_input_channels():
     cond = nnx.eval_shape(lambda v, x: first_frame_cond(v, x, 9), vae, x)
     assert cond.shape == (1, 9, 44, 80, 20) == (1, 9, cfg.latent_height, cfg.latent_width,
                                                  cfg.in_channels - cfg.latent_channels)
+
+
+def test_image_cond_encoding_is_the_video_layouts_latent_zero_then_zeros():
+    """cond_encoding="image": latent 0 equals the "video" layout's latent 0 (causal encoder), later latents
+    are 0; the streaming start/next slices equal the full computation; the steady index is 1."""
+    import dataclasses
+
+    from solaris_env.world_model.vae import CausalVideoVAE
+    from solaris_env.world_model.world_model import steady_cond_index
+
+    video_cfg = WorldModelConfig.test().vae
+    image_cfg = dataclasses.replace(video_cfg, cond_encoding="image")
+    video_vae = CausalVideoVAE(video_cfg, rngs=nnx.Rngs(0))
+    image_vae = CausalVideoVAE(image_cfg, rngs=nnx.Rngs(0))
+    first = jax.random.uniform(jax.random.PRNGKey(1), (2, 32, 32, 3), minval=-1, maxval=1)
+    full_video = first_frame_cond(video_vae, first, 3)
+    full_image = first_frame_cond(image_vae, first, 3)
+    assert full_image.shape == full_video.shape
+    np.testing.assert_allclose(full_image[:, 0], full_video[:, 0], atol=1e-5)
+    m = image_cfg.temporal_factor
+    assert np.all(np.asarray(full_image[:, 1:, ..., m:]) == 0)
+    np.testing.assert_array_equal(full_image[..., :m], full_video[..., :m])  # the mask is unchanged
+    c0, state = first_frame_cond_start(image_vae, first)
+    c1, _ = first_frame_cond_next(image_vae, state)
+    np.testing.assert_allclose(c0[:, 0], full_image[:, 0], atol=1e-5)
+    np.testing.assert_array_equal(c1[:, 0], full_image[:, 1])
+    assert steady_cond_index(image_cfg) == 1 < steady_cond_index(video_cfg)

@@ -231,6 +231,37 @@ def test_shifted_query_rope_start_changes_outputs(rollout):
     assert (diff[1:] > 1e-3).all(), diff
 
 
+decode_cached_fn = nnx.jit(lambda m, *a: m.decode_step_cached(*a))
+denoise_cached_fn = nnx.jit(lambda m, *a: m.denoise_step_cached(*a))
+context_kv_fn = nnx.jit(lambda m, c: m.context_kv(c))
+
+
+@pytest.mark.parametrize("method", ["attn", "concat"])
+def test_cached_context_kv_equals_recomputing_it(method):
+    """decode_step_cached(context_kv(context)) == decode_step(context) (and denoise_step_cached == its
+    velocity) for a pass against an empty cache and one holding a frame; the caches written agree too."""
+    cfg = _cfg(players=2, method=method)
+    model, inp = _build(cfg, seed=7), _inputs(cfg, seed=7)
+    ctx_kv = context_kv_fn(model, inp["context"])
+    layers, b, p = cfg.dit.num_layers, BATCH, cfg.stream_players
+    assert ctx_kv.k_LBPNMK.shape == (layers, b, p, cfg.dit.num_heads, inp["context"].shape[2], cfg.dit.head_dim)
+    cache = kv_cache.init_cache(cfg, BATCH, jnp.float32)
+    for i in range(2):
+        sl = slice(i, i + 1)
+        rest = (window_at(inp["mouse"], cfg, i), window_at(inp["keyboard"], cfg, i), cache, i)
+        head = (inp["noisy"][:, :, sl], inp["t"][:, :, sl], inp["cond"][:, :, sl])
+        v_ref, cache_ref = decode_fn(model, *head, inp["context"], *rest)
+        v, cache_new = decode_cached_fn(model, *head, ctx_kv, *rest)
+        assert float(jnp.abs(v_ref).mean()) > 0.05
+        np.testing.assert_allclose(v, v_ref, atol=1e-5, rtol=0)
+        np.testing.assert_allclose(denoise_cached_fn(model, *head, ctx_kv, *rest), v_ref, atol=1e-5, rtol=0)
+        jax.tree.map(lambda a, r: np.testing.assert_allclose(a, r, atol=1e-5, rtol=0), cache_new, cache_ref)
+        _, cache = decode_fn(model, inp["clean"][:, :, sl], jnp.zeros_like(inp["t"][:, :, sl]), inp["cond"][:, :, sl],
+                             inp["context"], *rest)
+    with pytest.raises(ValueError, match="context_kv.k"):
+        decode_cached_fn(model, *head, ctx_kv._replace(k_LBPNMK=ctx_kv.k_LBPNMK[1:]), *rest)
+
+
 def test_cache_after_rollout(cfg2, rollout):
     cache = rollout["cache"]
     np.testing.assert_array_equal(cache.self_attn.length, [cfg2.cache_tokens] * cfg2.dit.num_layers)

@@ -82,7 +82,8 @@ def test_init_cache_shapes_for_solaris(method, players):
     cfg = WorldModelConfig.solaris(num_players=players, dit=DiTConfig(multiplayer=method))
     cache = jax.eval_shape(lambda: kv_cache.init_cache(cfg, batch=3))  # no 2 GB allocation
     p = players if method == "attn" else 1
-    assert cache.self_attn.k.shape == (30, 3, 6 * p * 880, 12, 128)
+    assert cache.self_attn.k.shape == (30, 3, 12, 6 * p * 880, 128)  # heads-major
+    assert cache.self_attn.size == 6 * p * 880
     assert cache.mouse.k.shape == (30, 3 * p * 880, 6, 16, 64)
     assert cache.keyboard.v.shape == (30, 3 * p, 6, 16, 64)
     assert cache.self_attn.length.shape == (30,) and cache.self_attn.length.dtype == jnp.int32
@@ -94,3 +95,33 @@ def test_init_cache_is_empty_and_uses_requested_dtype():
     cache = kv_cache.init_cache(cfg, batch=1, dtype=jnp.bfloat16)
     assert cache.self_attn.k.dtype == jnp.bfloat16 and not cache.self_attn.k.any()
     assert not np.asarray(kv_cache.valid_mask(cache.mouse)).any()
+
+
+def test_heads_major_layout_rolls_like_the_default():
+    """layout "BNSK" holds the same entries as "BSNK", heads before slots."""
+    a = kv_cache.empty_cache((), 2, 3, 2, 4, jnp.float32)
+    b = kv_cache.empty_cache((), 2, 3, 2, 4, jnp.float32, layout="BNSK")
+    assert b.k.shape == (2, 2, 3, 4) and b.size == a.size == 3
+    rng = np.random.default_rng(0)
+    for n in (1, 2, 1, 3):
+        k, v = (jnp.asarray(rng.normal(size=(2, n, 2, 4)), jnp.float32) for _ in range(2))
+        a = kv_cache.update(a, k, v)
+        b = kv_cache.update(b, k.transpose(0, 2, 1, 3), v.transpose(0, 2, 1, 3))
+        np.testing.assert_array_equal(b.k, a.k.transpose(0, 2, 1, 3))
+        np.testing.assert_array_equal(b.v, a.v.transpose(0, 2, 1, 3))
+        np.testing.assert_array_equal(kv_cache.valid_mask(b), kv_cache.valid_mask(a))
+    with pytest.raises(ValueError, match="layout"):
+        kv_cache.empty_cache((), 1, 2, 1, 1, jnp.float32, layout="SBNK")
+
+
+@pytest.mark.parametrize("length,n_new", [(0, 1), (2, 1), (3, 2), (5, 2), (5, 5), (4, 3)])
+def test_kept_mask_marks_the_slots_valid_after_an_update(length, n_new):
+    """Slots j of the current cache with kept_mask[j] are exactly those at j - n_new, valid, after update."""
+    size = 5
+    cache = kv_cache.empty_cache((), 1, size, 1, 1, jnp.float32)
+    cache = dataclasses.replace(cache, k=jnp.arange(size, dtype=jnp.float32).reshape(1, size, 1, 1),
+                                length=jnp.int32(length))
+    updated = kv_cache.update(cache, jnp.full((1, n_new, 1, 1), -1.0), jnp.zeros((1, n_new, 1, 1)))
+    kept = np.asarray(kv_cache.kept_mask(cache, n_new))
+    after = np.asarray(updated.k[0, :, 0, 0])[np.asarray(kv_cache.valid_mask(updated))]
+    np.testing.assert_array_equal(np.arange(size)[kept], after[after >= 0])  # old entries still seen
