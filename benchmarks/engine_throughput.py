@@ -104,11 +104,53 @@ def collect_rate(episodes: int) -> dict:
             "episodes": episodes, "ticks": ticks, "wall_s": wall, "mp4_bytes": mp4_bytes}
 
 
+def _proc_cpu_s(pid: int) -> float:
+    with open(f"/proc/{pid}/stat") as f:
+        fields = f.read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def minecraft_rate(out: Path, quick: bool) -> None:
+    """One rotationEval pair (~350 ticks) recorded at 128x128 on real Minecraft: frames/s over both
+    bots, ticks/s, and CPU cores used by the recorder (both bots + views) and by the server."""
+    import resource
+
+    from solaris_env.engine.minecraft.collect import MinecraftSession
+    from solaris_env.engine.recorder import EpisodeKey
+
+    load_before = os.getloadavg()
+    with tempfile.TemporaryDirectory() as tmp, MinecraftSession() as session:
+        rows = []
+        for ep in range(1 if quick else 2):
+            cpu0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+            srv0, t0 = _proc_cpu_s(session.server.pid), time.perf_counter()
+            res = session.record(tmp, EpisodeKey(ep, 0, eval_type="rotationEval"), "rotationEval", 0, 128, 128)
+            wall = time.perf_counter() - t0
+            cpu1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+            rec_cpu = (cpu1.ru_utime + cpu1.ru_stime) - (cpu0.ru_utime + cpu0.ru_stime)
+            rows.append({"ticks": res["ticks"], "wall_s": round(wall, 2), "catchup_ticks": res["catchup_ticks"],
+                         "frames_per_s": round(2 * res["ticks"] / wall, 1),
+                         "recorder_cpu_cores": round(rec_cpu / wall, 3),
+                         "server_cpu_cores": round((_proc_cpu_s(session.server.pid) - srv0) / wall, 3)})
+    result = {"backend": "minecraft", "episodes": rows,
+              "note": "wall_s includes bot login, teleport and ~3 s of chunk-meshing warm-up per episode",
+              "machine": machine_info(load_before)}
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(result, indent=2) + "\n")
+    print(json.dumps(rows, indent=2))
+    print(f"wrote {out}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="fewer timed calls and episodes")
-    parser.add_argument("--out", type=Path, default=RESULTS)
+    parser.add_argument("--out", type=Path, default=None)
+    parser.add_argument("--backend", choices=("voxel", "minecraft"), default="voxel",
+                        help="minecraft: frames/s and CPU per bot pair of the real-Minecraft recorder")
     args = parser.parse_args()
+    if args.backend == "minecraft":
+        return minecraft_rate(args.out or RESULTS.with_name("engine_throughput_minecraft.json"), args.quick)
+    args.out = args.out or RESULTS
     repeats, episodes = (1, 2) if args.quick else (3, 4)
 
 

@@ -248,6 +248,8 @@ def auto_chunk_ticks(height: int, width: int, players: int = 2) -> int:
 
 
 def cmd_collect(args) -> int:
+    if args.backend == "minecraft":
+        return cmd_collect_minecraft(args)
     from solaris_env.engine.bots import registry
     from solaris_env.engine.recorder import clean_staging, episode_complete
 
@@ -286,6 +288,73 @@ def cmd_collect(args) -> int:
         write_eval_bookkeeping(out, types)
     clean_staging(out, remove_root=True)
     return 1 if failed else 0
+
+
+def minecraft_jobs(args) -> list[Job]:
+    """The collect's jobs for the Minecraft backend: the same numbering, restricted to the types record.js has."""
+    from solaris_env.engine.minecraft.collect import EVAL_TYPES, TRAINING_TYPES
+    from solaris_env.engine.recorder import split_of
+
+    if args.eval:
+        types = args.eval_types or list(EVAL_TYPES)
+        unknown = sorted(set(types) - set(EVAL_TYPES))
+        if unknown:
+            raise SystemExit(f"--backend minecraft: eval types {unknown} are not implemented; available: {EVAL_TYPES}")
+        n = args.episodes if args.episodes is not None else DEFAULT_EVAL_EPISODES
+        per_instance = -(-n // EVAL_INSTANCES_FLAT)
+        pairs = [(i, e) for i in range(EVAL_INSTANCES_FLAT) for e in range(per_instance)][:n]
+        return [Job(str(args.out), args.seed, e, args.instance_offset + i, "flat", t, t, "test", 0, *args.resolution)
+                for t in types for i, e in pairs]
+    if args.episodes is None:
+        raise SystemExit("collect: --episodes is required for training data")
+    types = args.types or list(TRAINING_TYPES)
+    unknown = sorted(set(types) - set(TRAINING_TYPES))
+    if unknown:
+        raise SystemExit(f"--backend minecraft: training types {unknown} are not implemented; available: {TRAINING_TYPES}")
+    jobs = []
+    for e in range(args.episodes):
+        instance = args.instance_offset + e % args.instances
+        jobs.append(Job(str(args.out), args.seed, e, instance, "flat", types[e % len(types)], None,
+                        split_of(args.seed, instance, e, args.test_fraction), 0, *args.resolution))
+    return jobs
+
+
+def cmd_collect_minecraft(args) -> int:
+    """``collect --backend minecraft``: episodes run one after another on one server (flat world only)."""
+    from solaris_env.engine.minecraft.collect import MinecraftSession
+    from solaris_env.engine.recorder import clean_staging, episode_complete
+
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    if args.workers != 1:
+        print("warning: --backend minecraft records one episode at a time (--workers ignored)", file=sys.stderr)
+    clean_staging(out)
+    jobs = minecraft_jobs(args)
+    todo = [j for j in jobs if not episode_complete(out, j.key())]
+    print(f"{len(jobs)} episodes, {len(jobs) - len(todo)} already complete, {len(todo)} to collect", file=sys.stderr)
+    failed = 0
+    t0 = time.perf_counter()
+    with MinecraftSession(seed=args.seed) as session:
+        for job in todo:
+            try:
+                res = session.record(out, job.key(), job.episode_type, job.seed, job.height, job.width, job.split)
+                print(f"episode {job.episode} ({job.episode_type}): {res['ticks']} ticks, aborted={res['aborted']} "
+                      f"{res['abort_reason']}", file=sys.stderr)
+            except Exception:  # noqa: BLE001 - reported per episode; the collect goes on
+                failed += 1
+                print(f"episode {job.episode} instance {job.instance} failed:\n{traceback.format_exc()}",
+                      file=sys.stderr)
+    print(f"wrote {len(todo) - failed} episodes ({failed} failed) in {time.perf_counter() - t0:.1f} s", file=sys.stderr)
+    if args.eval:
+        write_eval_bookkeeping(out, sorted({j.eval_type for j in jobs}))
+    clean_staging(out, remove_root=True)
+    return 1 if failed else 0
+
+
+def cmd_setup_minecraft(args) -> int:
+    from solaris_env.engine.minecraft.install import setup
+
+    return setup(skip_apt=args.skip_apt, force_npm=args.force_npm)
 
 
 def cmd_preview(args) -> int:
@@ -335,7 +404,14 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--chunk-ticks", type=int, default=None,
                    help=f"ticks rendered per renderer call (x 2 views); default: <= {MAX_CHUNK_TICKS} within "
                         f"{CHUNK_PIXEL_BUDGET} pixels")
+    c.add_argument("--backend", choices=("voxel", "minecraft"), default="voxel",
+                   help="voxel: our engine; minecraft: real Minecraft 1.20.1 (needs `setup-minecraft`)")
     c.set_defaults(func=cmd_collect)
+
+    m = sub.add_parser("setup-minecraft", help="install the real-Minecraft backend (apt packages, npm ci, patch)")
+    m.add_argument("--skip-apt", action="store_true", help="fail instead of running apt-get for missing packages")
+    m.add_argument("--force-npm", action="store_true", help="run npm ci even if node_modules looks built")
+    m.set_defaults(func=cmd_setup_minecraft)
 
     p = sub.add_parser("preview", help="contact sheet PNG + side-by-side mp4 of collected episodes")
     p.add_argument("dir", help="a collect output dir (searched recursively for *_Alpha_*.mp4)")

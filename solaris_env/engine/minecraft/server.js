@@ -1,0 +1,43 @@
+#!/usr/bin/env node
+// A flying-squid Minecraft 1.20.1 server on 127.0.0.1, offline mode, flat world, everybody op (bots
+// teleport themselves with /tp). Started and stopped by solaris_env/engine/minecraft/supervisor.py.
+// Usage: node server.js '<json config>'   config: {port (0 = any free port), version, viewDistance, seed}
+// Prints exactly one JSON line {"event":"ready","port":N} on stdout once it listens.
+'use strict'
+const mcServer = require('flying-squid')
+
+const cfg = Object.assign({ port: 0, version: '1.20.1', viewDistance: 4, seed: 42 }, JSON.parse(process.argv[2] || '{}'))
+
+const serv = mcServer.createMCServer({
+  motd: 'solaris_env',
+  port: cfg.port,
+  host: '127.0.0.1',
+  'max-players': 8,
+  'online-mode': false,
+  logging: false,
+  gameMode: 0,
+  difficulty: 0,
+  generation: { name: 'superflat', options: { seed: cfg.seed, middleThickness: 3 } },
+  kickTimeout: 30000,
+  plugins: {},
+  modpe: false,
+  'view-distance': cfg.viewDistance,
+  'player-list-text': { header: { text: '' }, footer: { text: '' } },
+  'everybody-op': true,
+  'max-entities': 16,
+  version: cfg.version
+})
+
+serv.on('listening', (port) => {
+  process.stdout.write(JSON.stringify({ event: 'ready', port }) + '\n')
+})
+serv.on('error', (err) => {
+  process.stderr.write(`server error: ${err && err.stack ? err.stack : err}\n`)
+  process.exit(1)
+})
+const stop = () => { process.exit(0) }
+process.on('SIGTERM', stop)
+process.on('SIGINT', stop)
+// The supervisor holds our stdin: when it dies, stdin closes and we exit (no orphans).
+process.stdin.on('end', stop)
+process.stdin.resume()
