@@ -36,7 +36,7 @@ from solaris_env.world_model import checkpoint
 from solaris_env.world_model.config import WorldModelConfig
 from solaris_env.world_model.config import preset as make_preset
 from solaris_env.world_model.dit import WorldDiT
-from solaris_env.world_model.world_model import WorldModel
+from solaris_env.world_model.world_model import COMPONENTS, WorldModel
 from training import data as D
 from training.checkpointing import Checkpointer, abstract_state
 from training.metrics import MetricsLogger
@@ -419,13 +419,17 @@ def install_default(model: str | Path, dest: str | Path | None = None, extra_fil
     import shutil
     import tempfile
 
+    from solaris_env.world_model import checkpoint
+
     model, dest = Path(model), Path(dest) if dest else DEFAULT_MODEL_DIR
-    WorldModel.load(model)  # refuse to install anything that does not load
+    loaded = WorldModel.load(model)  # refuse to install anything that does not load
     dest.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{dest.name}.tmp-", dir=dest.parent))
-    try:
-        for f in model.iterdir():
-            shutil.copy2(f, tmp / f.name)
+    try:  # shipped in float16 storage (half the size; loads back as float32)
+        checkpoint.save(tmp / "model", loaded.config, dict(zip(COMPONENTS, loaded.params)), storage_dtype="float16")
+        for f in (tmp / "model").iterdir():
+            f.replace(tmp / f.name)
+        (tmp / "model").rmdir()
         for f in map(Path, extra_files):
             shutil.copy2(f, tmp / f.name)
         if dest.exists():

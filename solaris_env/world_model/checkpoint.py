@@ -124,15 +124,31 @@ def _merge(graphdef, abstract_state, values: dict[str, jax.Array]):
 # ---------------------------------------------------------------------------------------------
 
 
-def save(path, config: WorldModelConfig, params: dict) -> pathlib.Path:
-    """Write ``params`` ({component: NNX state}) and ``config`` to directory ``path`` atomically."""
+STORAGE_DTYPES = (None, "float16")
+
+
+def save(path, config: WorldModelConfig, params: dict, storage_dtype: str | None = None) -> pathlib.Path:
+    """Write ``params`` ({component: NNX state}) and ``config`` to directory ``path`` atomically.
+
+    ``storage_dtype="float16"`` stores float32 parameters in half precision (half the size, e.g. for the
+    shipped model); ``load`` casts them back to the model's dtypes. Values outside the float16 range are
+    an error, never silently clipped."""
     from safetensors.numpy import save_file
 
+    if storage_dtype not in STORAGE_DTYPES:
+        raise ValueError(f"storage_dtype must be one of {STORAGE_DTYPES}, got {storage_dtype!r}")
     path = pathlib.Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tensors = {f"{name}/{key}": np.ascontiguousarray(np.asarray(value))
                for name, state in params.items() for key, value in flat_params(state).items()}
-    meta = {"format": FORMAT, "version": VERSION, "components": sorted(params), "config": config_to_dict(config)}
+    if storage_dtype is not None:
+        for key, value in tensors.items():
+            if value.dtype == np.float32:
+                if np.abs(value).max(initial=0.0) > np.finfo(np.float16).max:
+                    raise ValueError(f"{key}: values exceed the float16 range; save with storage_dtype=None")
+                tensors[key] = value.astype(np.float16)
+    meta = {"format": FORMAT, "version": VERSION, "components": sorted(params), "config": config_to_dict(config),
+            "storage_dtype": storage_dtype}
     tmp = pathlib.Path(tempfile.mkdtemp(prefix=f".{path.name}.tmp-", dir=path.parent))
     try:
         save_file(tensors, str(tmp / WEIGHTS_FILE), metadata={"format": FORMAT, "version": str(VERSION)})
@@ -172,6 +188,10 @@ def load(path) -> tuple[WorldModelConfig, tuple]:
     abstract = _abstract(config)
     expected = {f"{name}/{key}": _spec(v) for name, (_, state) in abstract.items()
                 for key, v in flat_params(state).items()}
+    storage = json.loads((path / CONFIG_FILE).read_text()).get("storage_dtype")
+    if storage is not None:  # half-precision storage of float32 parameters (``save(storage_dtype=...)``)
+        tensors = {k: v.astype(np.float32) if v.dtype == np.dtype(storage) and expected.get(k, ((), ""))[1] == "float32"
+                   else v for k, v in tensors.items()}
     check_tree(expected, {k: _spec(v) for k, v in tensors.items()}, str(path))
     modules = []
     for name, (graphdef, state) in abstract.items():

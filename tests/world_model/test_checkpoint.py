@@ -264,3 +264,27 @@ def test_solaris_preset_dit_tree_is_the_reference_tree():
     """The default official config is the solaris preset; its DiT tree is the reference tree."""
     dit = abstract_modules(WorldModelConfig.solaris())[0]
     assert set(checkpoint.flat_params(nnx.state(dit))) == _official_keys()
+
+
+def test_float16_storage_round_trips_within_half_precision(tmp_path):
+    """``save(storage_dtype="float16")`` halves the file and loads back as float32 close to the original;
+    out-of-range values are an error."""
+    import numpy as np
+
+    from solaris_env.world_model import checkpoint
+    from solaris_env.world_model.world_model import COMPONENTS, WorldModel
+
+    model = WorldModel.from_preset("test", seed=0)
+    params = dict(zip(COMPONENTS, model.params))
+    checkpoint.save(tmp_path / "f32", model.config, params)
+    checkpoint.save(tmp_path / "f16", model.config, params, storage_dtype="float16")
+    size = lambda d: (d / checkpoint.WEIGHTS_FILE).stat().st_size
+    assert size(tmp_path / "f16") < 0.6 * size(tmp_path / "f32")
+    loaded = WorldModel.load(tmp_path / "f16")
+    for a, b in zip(model.params, loaded.params):
+        for key, value in checkpoint.flat_params(a).items():
+            got = checkpoint.flat_params(b)[key]
+            assert got.dtype == value.dtype
+            np.testing.assert_allclose(np.asarray(got), np.asarray(value), rtol=1e-3, atol=1e-4)
+    with pytest.raises(ValueError, match="storage_dtype"):
+        checkpoint.save(tmp_path / "bad", model.config, params, storage_dtype="int8")
