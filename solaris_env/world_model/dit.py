@@ -103,11 +103,19 @@ def _fold(a_BP_: jax.Array) -> jax.Array:
 # differentiate or jit a pure function of part of its state (e.g. jax.grad w.r.t. inputs only).
 
 
-def _run_if(pred: jax.Array, module: nnx.Module, run, skip, *operands):
-    """``run(module, *operands)`` if ``pred`` else ``skip(*operands)``; one branch executes."""
+def _run_if(pred: jax.Array, module: nnx.Module, run, skip, *operands, select=None):
+    """``run(module, *operands)`` if ``pred`` else ``skip(*operands)``; one branch executes. ``select``
+    maps the module's state inside the taken branch (e.g. picks one layer of stacked parameters, so the
+    skipped branch never reads them)."""
     graphdef, state = nnx.split(module)
-    return jax.lax.cond(pred, lambda st, *ops: run(nnx.merge(graphdef, st), *ops), lambda st, *ops: skip(*ops),
-                        state, *operands)
+    pick = (lambda st: st) if select is None else select
+    return jax.lax.cond(pred, lambda st, *ops: run(nnx.merge(graphdef, pick(st)), *ops),
+                        lambda st, *ops: skip(*ops), state, *operands)
+
+
+def _layer_of(layer: jax.Array):
+    """State of stacked layers -> the state of layer ``layer`` (traced index)."""
+    return lambda state: jax.tree.map(lambda a: jax.lax.dynamic_index_in_dim(a, layer, 0, keepdims=False), state)
 
 
 def _scan_layers(blocks: nnx.Module, step, carry, per_layer, remat: bool = False, unroll: bool = False):
@@ -338,9 +346,12 @@ class DiTBlock(nnx.Module):
         return self._ffn_residual(x_BPFLD, mods)
 
     def decode(self, x_BP1LD: jax.Array, cond: _Conditioning, angles_LJ: jax.Array, action_angles_1J: jax.Array,
-               layer: jax.Array, cache: kv_cache.DiTCache, cross_kv: tuple[jax.Array, jax.Array]):
+               layer: jax.Array, cache: kv_cache.DiTCache, cross_kv: tuple[jax.Array, jax.Array],
+               stacked_actions: bool = False):
         """One latent frame against this layer's caches -> (x_BP1LD, updated caches); ``cross_kv`` = this
-        layer's context keys/values, heads-major, each (B*P, N, M, K)."""
+        layer's context keys/values, heads-major, each (B*P, N, M, K). ``stacked_actions``: this block's
+        ``action_model`` holds every layer's parameters (leading layer axis) and the branch that runs it
+        picks layer ``layer`` (so layers without an action module never copy those weights)."""
         mods = self._modulation(cond.e0_BPF6D)
         x_BP1LD = x_BP1LD + cond.player_PD[None, :, None, None].astype(x_BP1LD.dtype)
         y, self_cache = self.self_attn.decode(self._attn_input(x_BP1LD, mods), angles_LJ, cache.self_attn)
@@ -356,7 +367,8 @@ class DiTBlock(nnx.Module):
 
         x_BP1LD, mouse_cache, keyboard_cache = _run_if(
             layer < self.num_action_blocks, self.action_model, run_actions, lambda x, mc, kc: (x, mc, kc),
-            x_BP1LD, cache.mouse, cache.keyboard)
+            x_BP1LD, cache.mouse, cache.keyboard,
+            select=_layer_of(layer) if stacked_actions else None)
         new_cache = kv_cache.DiTCache(self_attn=self_cache, mouse=mouse_cache, keyboard=keyboard_cache)
         return self._ffn_residual(x_BP1LD, mods), new_cache
 
@@ -562,20 +574,23 @@ class WorldDiT(nnx.Module):
 
         # Per-layer caches and context K/V are read with a dynamic index (and the caches written back
         # in place) instead of being scanned as xs/ys: under a vmap over worlds, scanned xs/ys would be
-        # transposed to layer-major as a whole on every call.
-        at = lambda tree, i: jax.tree.map(lambda a: jax.lax.dynamic_index_in_dim(a, i, 0, keepdims=False), tree)
+        # transposed to layer-major as a whole on every call. The action modules' weights are not
+        # scanned either: only the layers that run one index them (``stacked_actions``).
+        at = lambda tree, i: _layer_of(i)(tree)
+        graphdef, action_state, rest_state = nnx.split(self.blocks, nnx.PathContains("action_model"), ...)
 
-        def step(block, carry, layer):
-            h, caches = carry
+        def body(carry, xs):
+            (h, caches), (layer_state, layer) = carry, xs
+            block = nnx.merge(graphdef, action_state, layer_state)
             h, new_cache = block.decode(h, cond_in, angles, action_angles, layer, at(cache, layer),
-                                        cross_kv_of(block, at(per_layer_kv, layer)))
+                                        cross_kv_of(block, at(per_layer_kv, layer)), stacked_actions=True)
             if keep_cache:
                 caches = jax.tree.map(lambda a, n: jax.lax.dynamic_update_index_in_dim(a, n.astype(a.dtype), layer, 0),
                                       caches, new_cache)
             return (h, caches), None
 
-        (tokens, new_caches), _ = _scan_layers(self.blocks, step, (tokens, cache if keep_cache else None),
-                                               jnp.arange(d.num_layers), unroll=unroll)
+        (tokens, new_caches), _ = jax.lax.scan(body, (tokens, cache if keep_cache else None),
+                                               (rest_state, jnp.arange(d.num_layers)), unroll=unroll)
         return self._unpatchify(self.head(tokens, e)), new_caches
 
     def _grid(self) -> tuple[int, int]:

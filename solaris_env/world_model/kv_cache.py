@@ -16,7 +16,7 @@ Three caches per DiT (``DiTCache``), each with one entry per layer:
 
 | cache | k / v shape | slots |
 |---|---|---|
-| self_attn | (layers, B, N, cache_tokens, K), heads-major | window * stream players * tokens per frame (post-RoPE keys) |
+| self_attn | (layers, B, N, cache_tokens, K), heads-major | window * stream players * tokens per frame (post-RoPE k) |
 | mouse | (layers, B * P * tokens, window, Na, Ka) | one per frame, per spatial location |
 | keyboard | (layers, B * P, window, Na, Ka) | one per frame |
 

@@ -33,6 +33,12 @@ reference). RoPE angles are computed directly as position * frequency in f32 (no
 no length limit; attention only depends on position differences inside the window, and the f32 angle
 rounding error grows like position * 2^-24 rad (about 1e-3 rad after 10^4 latent frames).
 
+Work per step. The context (image-encoder tokens of the first frames) is constant, so ``init`` stores
+its cross-attention keys/values for every DiT layer in the state (``context_kv``, ``WorldDiT.context_kv``)
+and the passes read them (``WorldDiT.denoise_step_cached`` / ``decode_step_cached``) instead of
+re-projecting the context 5 times per step. The denoising passes never build the updated KV cache
+(they attend to "kept cache slots + this frame" as two blocks); only the commit pass writes it.
+
 Per-world independence. Every world has its own PRNG key stream, RoPE start frame and KV-cache fill
 level: the DiT and the sampler run under ``jax.vmap`` over worlds (the DiT sees batch 1 per world), the
 VAE decode and ``init`` run one world at a time (``lax.map``: the full-resolution convolutions are

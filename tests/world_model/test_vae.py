@@ -72,6 +72,24 @@ def test_tiny_is_64px_to_8x8x16_with_temporal_4():
     assert (cfg.latent_height, cfg.latent_width, cfg.latent_channels, cfg.vae.temporal_factor) == (8, 8, 16, 4)
 
 
+def test_decoder_base_dim_changes_only_the_decoder():
+    """tiny: encoder at base_dim 16, decoder at decoder_base_dim 8; 0 means base_dim (solaris unchanged)."""
+    tiny = WorldModelConfig.tiny().vae
+    assert tiny.base_dim == 16 and tiny.decoder_base_dim == 8 and tiny.decoder_dim == 8
+    assert WorldModelConfig.solaris().vae.decoder_dim == WorldModelConfig.solaris().vae.base_dim
+    same = dataclasses.replace(tiny, decoder_base_dim=0)
+    shapes = lambda cfg: {"/".join(map(str, k)): v.shape for k, v in nnx.to_flat_state(
+        nnx.state(nnx.eval_shape(lambda: CausalVideoVAE(cfg, rngs=nnx.Rngs(0))), nnx.Param))}
+    narrow, wide = shapes(tiny), shapes(same)
+    assert narrow.keys() == wide.keys()
+    changed = {k for k in narrow if narrow[k] != wide[k]}
+    assert changed and all(k.startswith("decoder/") for k in changed)
+    assert narrow["decoder/conv_in/kernel"][-1] == 8 * tiny.dim_mult[-1]
+    assert narrow["encoder/conv_in/kernel"][-1] == 16
+    with pytest.raises(ValueError, match="decoder_base_dim"):
+        dataclasses.replace(tiny, decoder_base_dim=-1)
+
+
 def test_temporal_factor_one_keeps_frame_count():
     vcfg = VAEConfig(base_dim=4, z_dim=4, dim_mult=(1, 2), num_res_blocks=1, temporal_downsample=(False,),
                      middle_attention=False)

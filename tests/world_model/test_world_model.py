@@ -17,8 +17,8 @@ from solaris_env.world_model import kv_cache
 from solaris_env.world_model.action_module import action_windows, left_pad_actions
 from solaris_env.world_model.conditioning import first_frame_cond
 from solaris_env.world_model.config import WorldModelConfig
-from solaris_env.world_model.world_model import (WorldModel, WorldState, abstract_modules, encoder_receptive_field,
-                                                 frames_to_model, steady_cond_index)
+from solaris_env.world_model.world_model import (Programs, WorldModel, WorldState, abstract_modules,
+                                                 encoder_receptive_field, frames_to_model, steady_cond_index)
 
 B = 2
 
@@ -151,6 +151,21 @@ def test_memory_flat_and_step_compiles_once(model):
     np.testing.assert_array_equal(state.frame_index_B, [21, 21])
     # the cache saturates at the window: every slot valid, shapes unchanged
     assert (np.asarray(state.dit_cache.self_attn.length) == model.config.cache_tokens).all()
+
+
+def test_unrolled_programs_compute_the_same_step(model):
+    """Programs(unroll=True) (straight-line sampler steps and DiT layers, used to count FLOPs with XLA's
+    cost analysis) computes the same step as the looped programs, and XLA counts more FLOPs in it."""
+    state = model.init(first_frames(model), 0)
+    actions = jnp.asarray(random_actions(model, B, 1, seed=4)[0])
+    looped = model.programs
+    unrolled = Programs(model.config, looped.graphdefs, unroll=True)
+    frames, new = jax.jit(looped.step)(model.params, state, actions)
+    frames_u, new_u = jax.jit(unrolled.step)(model.params, state, actions)
+    np.testing.assert_allclose(np.asarray(new_u.latent_BP1hwC), np.asarray(new.latent_BP1hwC), atol=1e-5)
+    assert np.abs(np.asarray(frames_u, int) - np.asarray(frames, int)).max() <= 1
+    cost = lambda p: jax.jit(p.denoise).lower(model.params, state, actions).compile().cost_analysis()["flops"]
+    assert cost(unrolled) > 2 * cost(looped)
 
 
 def test_rope_positions_beyond_the_table_work(model):
