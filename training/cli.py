@@ -71,7 +71,7 @@ def cmd_all(args) -> int:
     collect_if_missing(Path(args.data), args.preset, stage_cfg["collect"])
     timings = {"collect_s": time.perf_counter() - t0}
     for stage in STAGE_COMMANDS:
-        if args.skip_finished and (model_dir(args.out, stage) / "config.json").is_file():
+        if (model_dir(args.out, stage) / "config.json").is_file():  # finished earlier (resume = continue)
             print(f"{stage}: finished earlier, skipped")
             continue
         t = time.perf_counter()
@@ -84,7 +84,8 @@ def cmd_all(args) -> int:
 
 def cmd_install(args) -> int:
     from training.train import install_default
-    print(f"installed {args.model} as the default model at {install_default(args.model, args.dest)}")
+    dest = install_default(args.model, args.dest, tuple(args.files))
+    print(f"installed {args.model} as the default model at {dest}")
     return 0
 
 
@@ -107,14 +108,14 @@ def build_parser() -> argparse.ArgumentParser:
         common(p)
         p.add_argument("--steps", type=int, default=None, help="number of updates (default: the stage config's)")
         p.set_defaults(func=cmd_stage)
-    a = sub.add_parser("all", help="collect data, then the VAE and stages 1-4 in order")
+    a = sub.add_parser("all", help="collect data, then the VAE and stages 1-4 in order (finished stages, "
+                                   "those with a model/, are skipped; an unfinished one resumes)")
     common(a)
-    a.add_argument("--skip-finished", action="store_true", default=True,
-                   help="skip stages whose model/ exists (default; resuming mid-stage is automatic)")
     a.set_defaults(func=cmd_all, steps=None)
     i = sub.add_parser("install", help="copy a trained model to the package's default-model directory")
     i.add_argument("model", help="a model/ directory written by a stage")
     i.add_argument("--dest", default=None, help="default: solaris_env/assets/default")
+    i.add_argument("--files", nargs="*", default=[], help="copied alongside (training log, eval.json, contact sheet)")
     i.set_defaults(func=cmd_install)
     return parser
 

@@ -28,6 +28,7 @@ from training.samples import (
     psnr_per_frame,
     rollout,
     side_by_side,
+    write_json,
     write_mp4,
     write_png,
 )
@@ -103,10 +104,7 @@ def evaluate(model_dir: str | Path, data_dir: str | Path, out_dir: str | Path, n
     else:
         result["long_rollout"] = None
 
-    out_dir.mkdir(parents=True, exist_ok=True)
-    tmp = out_dir / "eval.json.tmp"
-    tmp.write_text(json.dumps(result, indent=1))
-    tmp.replace(out_dir / "eval.json")
+    write_json(out_dir / "eval.json", result)
     return result
 
 

@@ -140,5 +140,16 @@ def write_stage_sample(stem: Path, cfg: WorldModelConfig, dit, vae, encoder, dat
         gen = rollout(WorldModel(cfg, dit, vae, encoder), raw["obs"], raw["act"], seed)
     write_mp4(stem.with_suffix(".mp4"), side_by_side(gen[0], raw["obs"][0]))
     summary = {"psnr_db": float(psnr_per_frame(gen, raw["obs"])[:, 1:].mean()), "frames": int(num_frames)}
-    stem.with_suffix(".json").write_text(__import__("json").dumps(summary))
+    write_json(stem.with_suffix(".json"), summary)
     return summary
+
+
+def write_json(path: Path, obj) -> None:
+    """Atomic JSON file (a temporary name, then ``os.replace``)."""
+    import json
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(json.dumps(obj, indent=1))
+    tmp.replace(path)

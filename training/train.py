@@ -192,6 +192,7 @@ def train_vae(out: str | Path, data_dir: str | Path, preset_name: str, stage_cfg
               steps: int | None = None, resume: bool = True, fsdp: bool = False) -> Path:
     """Train the preset's VAE on single-player clips of the Duet data; write ``out/vae/model``."""
     from training import vae as V
+    from training.samples import write_json, write_png
 
     out, data_dir = Path(out), Path(data_dir)
     sc = dict(stage_cfg)
@@ -217,8 +218,9 @@ def train_vae(out: str | Path, data_dir: str | Path, preset_name: str, stage_cfg
     def on_sample(st, step):
         psnr = np.mean([V.psnr_uint8(np.asarray(reconstruct(st.params, st.rest, c)), c) for c in test_clips])
         _log_json(stage_dir(out, "vae") / "eval.jsonl", {"step": step, "test_psnr_db": float(psnr)})
-        _write_pairs(samples / f"recon_{step:06d}.png", test_clips[0][:4],
-                     np.asarray(reconstruct(st.params, st.rest, test_clips[0][:4])))
+        gt, rec = test_clips[0][:4], np.asarray(reconstruct(st.params, st.rest, test_clips[0][:4]))
+        rows = [np.concatenate(list(clip), axis=1) for pair in zip(gt, rec) for clip in pair]  # truth over recon
+        write_png(samples / f"recon_{step:06d}.png", np.concatenate(rows, axis=0), scale=1)
 
     spec = LoopSpec("vae", steps, sc["log_every"], sc["ckpt_every"], sc["sample_every"],
                     tokens_per_step=batch_size * cfg.num_players * sc["num_frames"] * cfg.frame_height
@@ -233,7 +235,7 @@ def train_vae(out: str | Path, data_dir: str | Path, preset_name: str, stage_cfg
     trained_vae = nnx.merge(graphdef, state.params, state.rest)
     dit, _, encoder = model.modules()
     WorldModel(final_cfg, dit, trained_vae, encoder).save(model_dir(out, "vae"))
-    _write_json(stage_dir(out, "vae") / "summary.json",
+    write_json(stage_dir(out, "vae") / "summary.json",
                 {"steps": steps, "test_psnr_db": test_psnr, "latent_mean": mean, "latent_std": std})
     return model_dir(out, "vae")
 
@@ -344,10 +346,11 @@ def train_self_forcing(out: str | Path, data_dir: str | Path, stage_cfg: dict, s
     steps = steps or sc["steps"]
     cfg, (generator, vae, encoder) = load_stage_model(out, "mp-causal")
     _, (teacher, _, _) = load_stage_model(out, "mp-bidirectional")
-    _, (critic, _, _) = load_stage_model(out, "mp-bidirectional")
+    critic = teacher  # both start from stage 2; create_self_forcing_state gives each its own copy
     sf_cfg = SF.SelfForcingConfig(generator_lr=sc["generator_lr"], critic_lr=sc["critic_lr"])
     gen_tx, critic_tx = SF.make_optimizers(sf_cfg)
     graphs, state = SF.create_self_forcing_state(generator, critic, teacher, gen_tx, critic_tx, rng=seed)
+    del critic, teacher
     mode = sc.get("generator", "checkpointed")
     make_generator_step = {"checkpointed": SF.make_checkpointed_generator_step,
                            "naive": SF.make_naive_generator_step}
@@ -382,28 +385,10 @@ def train_self_forcing(out: str | Path, data_dir: str | Path, stage_cfg: dict, s
 # ---------------------------------------------------------------------------------------------
 
 
-def _write_json(path: Path, obj) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(obj, indent=1))
-    tmp.replace(path)
-
-
 def _log_json(path: Path, obj) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     with open(path, "a") as f:
         f.write(json.dumps(obj) + "\n")
-
-
-def _write_pairs(path: Path, gt_NTHW3: np.ndarray, rec_NTHW3: np.ndarray) -> None:
-    """A PNG grid: per clip, ground-truth frames on one row and reconstructions under them."""
-    import cv2
-
-    rows = []
-    for gt, rec in zip(gt_NTHW3, rec_NTHW3):
-        rows += [np.concatenate(list(gt), axis=1), np.concatenate(list(rec), axis=1)]
-    path.parent.mkdir(parents=True, exist_ok=True)
-    cv2.imwrite(str(path), cv2.cvtColor(np.concatenate(rows, axis=0), cv2.COLOR_RGB2BGR))
 
 
 # ---------------------------------------------------------------------------------------------

@@ -7,7 +7,6 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from solaris_env.engine import cli
 from solaris_env.world_model.config import preset
 from solaris_env.world_model.world_model import WorldModel, frames_to_model
 from training import data as D
@@ -18,13 +17,8 @@ F16_ATOL = 2e-2  # latents are stored in float16
 
 
 @pytest.fixture(scope="module")
-def root(tmp_path_factory):
-    out = tmp_path_factory.mktemp("data")
-    argv = ["collect", "--out", str(out), "--resolution", "32", "--seed", "5", "--episodes", "2", "--world", "flat",
-            "--types", "walkLook", "--test-fraction", "0"]
-    assert cli.main(argv) == 0
-    assert cli.main(["export-vpt", str(out), "--out", str(out)]) == 0
-    return out
+def root(tiny_duet):
+    return tiny_duet
 
 
 @pytest.fixture(scope="module")

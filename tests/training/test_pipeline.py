@@ -11,7 +11,6 @@ from pathlib import Path
 
 import pytest
 
-from solaris_env.engine import cli as engine_cli
 from training import cli
 from training.metrics import read_metrics
 from training.train import STAGES, model_dir
@@ -20,12 +19,8 @@ REPO = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope="module")
-def data(tmp_path_factory):
-    out = tmp_path_factory.mktemp("data")
-    argv = ["collect", "--out", str(out), "--resolution", "32", "--seed", "4", "--episodes", "4", "--world", "flat",
-            "--types", "walkLook", "--test-fraction", "0.25"]
-    assert engine_cli.main(argv) == 0
-    return out
+def data(tiny_duet):
+    return tiny_duet
 
 
 @pytest.fixture(scope="module")
