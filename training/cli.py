@@ -2,6 +2,7 @@
 
     solaris-train all --preset tiny --data data/tiny --out runs/tiny       # collect, VAE, stages 1-4
     solaris-train vae --preset tiny --data data/tiny --out runs/tiny
+    solaris-train vae-decoder --preset tiny --data data/tiny --out runs/tiny   # decoder on long clips
     solaris-train sp | mp-bidirectional | mp-causal | self-forcing --data ... --out ...
     solaris-train install runs/tiny/self-forcing/model                    # -> solaris_env/assets/default
 
@@ -17,7 +18,7 @@ import logging
 import sys
 from pathlib import Path
 
-STAGE_COMMANDS = ("vae", "sp", "mp-bidirectional", "mp-causal", "self-forcing")
+STAGE_COMMANDS = ("vae", "vae-decoder", "sp", "mp-bidirectional", "mp-causal", "self-forcing")
 
 
 def _stage_cfg(args) -> dict:
@@ -47,6 +48,8 @@ def run_stage(stage: str, args, stage_cfg: dict) -> Path:
     kw = {"seed": seed, "steps": args.steps, "resume": not args.no_resume, "fsdp": args.fsdp}
     if stage == "vae":
         return train.train_vae(args.out, args.data, stage_cfg["preset"], stage_cfg["vae"], **kw)
+    if stage == "vae-decoder":
+        return train.train_vae_decoder(args.out, args.data, stage_cfg["vae-decoder"], **kw)
     if stage in train.FLOW_STAGES:
         return train.train_flow(stage, args.out, args.data, stage_cfg[stage], **kw)
     if stage == "self-forcing":
@@ -82,6 +85,12 @@ def cmd_all(args) -> int:
     return 0
 
 
+def cmd_with_decoder(args) -> int:
+    from training.train import with_decoder
+    print(f"wrote {with_decoder(args.model, args.decoder_from, args.out)}")
+    return 0
+
+
 def cmd_install(args) -> int:
     from training.train import install_default
     dest = install_default(args.model, args.dest, tuple(args.files))
@@ -112,6 +121,11 @@ def build_parser() -> argparse.ArgumentParser:
                                    "those with a model/, are skipped; an unfinished one resumes)")
     common(a)
     a.set_defaults(func=cmd_all, steps=None)
+    w = sub.add_parser("with-decoder", help="a model with the VAE decoder of a vae-decoder stage (same encoder)")
+    w.add_argument("model", help="a model/ directory (e.g. self-forcing/model)")
+    w.add_argument("--decoder-from", required=True, help="a vae-decoder/model sharing the model's encoder")
+    w.add_argument("--out", required=True, help="the new model directory")
+    w.set_defaults(func=cmd_with_decoder)
     i = sub.add_parser("install", help="copy a trained model to the package's default-model directory")
     i.add_argument("model", help="a model/ directory written by a stage")
     i.add_argument("--dest", default=None, help="default: solaris_env/assets/default")
@@ -124,7 +138,7 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
     logging.getLogger("absl").setLevel(logging.WARNING)  # orbax logs every save step at INFO
     args = build_parser().parse_args(argv)
-    if args.command != "install":
+    if args.command not in ("install", "with-decoder"):
         from training.distributed import maybe_initialize_distributed
         maybe_initialize_distributed()  # multi-host when JAX_COORDINATOR_ADDRESS / JAX_NUM_PROCESSES are set
     return args.func(args)

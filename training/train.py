@@ -50,7 +50,7 @@ from training.step import (
 logger = logging.getLogger(__name__)
 
 CONFIG_DIR = Path(__file__).parent / "configs"
-STAGES = ("vae", "sp", "mp-bidirectional", "mp-causal", "self-forcing")
+STAGES = ("vae", "vae-decoder", "sp", "mp-bidirectional", "mp-causal", "self-forcing")
 
 
 @dataclass(frozen=True)
@@ -64,7 +64,7 @@ class FlowStage:
 
 
 FLOW_STAGES = {
-    "sp": FlowStage("forward_bidirectional", "standard", "vae", single_player=True),
+    "sp": FlowStage("forward_bidirectional", "standard", "vae-decoder", single_player=True),
     "mp-bidirectional": FlowStage("forward_bidirectional", "standard", "sp", single_player=False),
     "mp-causal": FlowStage("forward_causal", "diffusion_forcing", "mp-bidirectional", single_player=False),
 }
@@ -240,6 +240,54 @@ def train_vae(out: str | Path, data_dir: str | Path, preset_name: str, stage_cfg
     return model_dir(out, "vae")
 
 
+def train_vae_decoder(out: str | Path, data_dir: str | Path, stage_cfg: dict, seed: int = 0,
+                      steps: int | None = None, resume: bool = True, fsdp: bool = False) -> Path:
+    """Fine-tune the decoder side of ``out/vae/model`` on long clips (``training.vae``: the encoder, the
+    latent statistics and so every latent stay fixed); write ``out/vae-decoder/model``."""
+    from training import vae as V
+    from training.samples import write_json
+
+    out, data_dir = Path(out), Path(data_dir)
+    sc = dict(stage_cfg)
+    steps = steps or sc["steps"]
+    cfg, (dit, vae, encoder) = load_stage_model(out, "vae")
+    k = cfg.frames_per_step
+    params = nnx.state(vae, nnx.Param)
+    tx = V.make_decoder_optimizer(sc["lr"], params)
+    graphdef, state = TrainState.create(vae, tx, rng=seed)
+    step_fn = V.make_decoder_train_step(graphdef, tx, V.VAELossWeights())
+    dataset, sampler = duet_stream(data_dir, cfg, sc["num_frames"], seed)
+    batch_size = local_batch_size(sc["batch_size"])
+
+    def draw():  # B segments x P players -> B*P single-player clips (B*P, T, H, W, 3)
+        obs = D.next_batch(dataset, sampler, batch_size)["obs"]
+        return jnp.asarray(np.swapaxes(obs, 1, 2).reshape((-1,) + obs.shape[1:2] + obs.shape[3:]))
+
+    test_clips = _fixed_clips(data_dir, cfg, sc["num_frames"], sc["eval_clips"], seed)
+    reconstruct = V.make_reconstruct(graphdef)
+
+    def test_psnr(st) -> dict:
+        rec = np.concatenate([np.asarray(reconstruct(st.params, st.rest, c)) for c in test_clips])
+        gt = np.concatenate(test_clips)
+        return {"test_psnr_db": V.psnr_uint8(rec, gt), "test_psnr_by_latent_db": V.psnr_per_latent_step(rec, gt, k)}
+
+    before = test_psnr(state)
+    _log_json(stage_dir(out, "vae-decoder") / "eval.jsonl", {"step": 0, **before})
+
+    def on_sample(st, step):
+        _log_json(stage_dir(out, "vae-decoder") / "eval.jsonl", {"step": step, **test_psnr(st)})
+
+    spec = LoopSpec("vae-decoder", steps, sc["log_every"], sc["ckpt_every"], sc["sample_every"],
+                    tokens_per_step=batch_size * cfg.num_players * sc["num_frames"] * cfg.frame_height
+                    * cfg.frame_width, lr=sc["lr"], fsdp=fsdp)
+    state = run_loop(spec, out, state, step_fn, draw, sampler, resume, on_sample)
+    after = test_psnr(state)
+    WorldModel(cfg, dit, nnx.merge(graphdef, state.params, state.rest), encoder).save(model_dir(out, "vae-decoder"))
+    write_json(stage_dir(out, "vae-decoder") / "summary.json",
+               {"steps": steps, "num_frames": sc["num_frames"], "before": before, "after": after})
+    return model_dir(out, "vae-decoder")
+
+
 def _fixed_clips(data_dir: Path, cfg: WorldModelConfig, num_frames: int, count: int, seed: int) -> list[np.ndarray]:
     """Held-out single-player clips (duet/test), the same every run: list of (n, T, H, W, 3) uint8."""
     dataset, sampler = duet_stream(data_dir, cfg, num_frames, seed + 10_000, split="test")
@@ -389,6 +437,29 @@ def _log_json(path: Path, obj) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     with open(path, "a") as f:
         f.write(json.dumps(obj) + "\n")
+
+
+def with_decoder(model: str | Path, decoder_from: str | Path, dest: str | Path) -> Path:
+    """Write ``model`` with the VAE decoder side of ``decoder_from`` (a ``vae-decoder`` stage output) to
+    ``dest``. Allowed only when both share the encoder side bit for bit (encoder, moments conv, latent
+    statistics), i.e. the same latent space: the DiT's latents decode exactly as through that stage."""
+    from training.vae import DECODER_MODULES
+
+    base, donor = WorldModel.load(model), WorldModel.load(decoder_from)
+    (dit, vae, encoder), (_, donor_vae, _) = base.modules(), donor.modules()
+    mine, theirs = nnx.state(vae, nnx.Param), nnx.state(donor_vae, nnx.Param)
+    stats = lambda c: (c.vae.latent_mean, c.vae.latent_std)
+    for name in mine:
+        if name in DECODER_MODULES:
+            continue
+        same = all(np.array_equal(np.asarray(a), np.asarray(b))
+                   for a, b in zip(jax.tree.leaves(mine[name]), jax.tree.leaves(theirs[name])))
+        if not same:
+            raise ValueError(f"{decoder_from}: its VAE {name!r} differs from {model}'s: not the same latent space")
+    if stats(base.config) != stats(donor.config) or base.config.vae != donor.config.vae:
+        raise ValueError(f"{decoder_from}: VAE config / latent statistics differ from {model}'s")
+    WorldModel(base.config, dit, donor_vae, encoder).save(dest)
+    return Path(dest)
 
 
 # ---------------------------------------------------------------------------------------------

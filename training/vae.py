@@ -14,6 +14,15 @@ means, which become the config's ``latent_mean``/``latent_std`` (the DiT works o
     graphdef, state = TrainState.create(vae, make_optimizer(lr), rng=0)
     step = make_vae_train_step(graphdef, tx, VAELossWeights())
     state, metrics = step(state, video_BTHWC)          # video in [-1, 1]
+
+Decoder fine-tuning (the ``vae-decoder`` stage, :func:`make_decoder_train_step`): a VAE trained on clips
+of 1 + k frames has only ever decoded latent 1 with the causal cache of latent 0; from latent 2 on, its
+decoder's temporal convolutions see a cache it never saw in training and the reconstruction collapses
+(measured on the session-2 tiny VAE: 21 dB for frames 1-4, 14 dB after). Decoding the long streams
+the env produces needs a decoder trained on them, and clips that long are too slow for the whole VAE
+on our CPU. So the second VAE stage trains only the decoder side (``conv2`` + ``decoder``) on long clips,
+from the frozen encoder's posterior means: the latent space, its statistics and every latent the DiT
+stages cache or generate stay exactly as they were.
 """
 
 from __future__ import annotations
@@ -28,7 +37,7 @@ from flax import nnx
 
 from solaris_env.world_model.vae import CausalVideoVAE, kl_divergence, sample_posterior
 from solaris_env.world_model.world_model import frames_to_model
-from training.step import TrainState
+from training.step import TrainState, make_optimizer
 
 
 @dataclass(frozen=True)
@@ -69,6 +78,50 @@ def make_vae_train_step(graphdef: nnx.GraphDef, tx: optax.GradientTransformation
     return jax.jit(step, donate_argnums=(0,))
 
 
+DECODER_MODULES = ("conv2", "decoder")  # what the vae-decoder stage trains; the rest is frozen
+
+
+def decoder_labels(params) -> object:
+    """optax labels: ``train`` for the decoder side (``DECODER_MODULES``), ``frozen`` for the encoder side."""
+    return jax.tree_util.tree_map_with_path(
+        lambda path, _: "train" if getattr(path[0], "key", None) in DECODER_MODULES else "frozen", params)
+
+
+def decoder_loss(vae: CausalVideoVAE, video_BTHWC: jax.Array, weights: VAELossWeights
+                 ) -> tuple[jax.Array, dict[str, jax.Array]]:
+    """Reconstruction loss of the decoder from the frozen encoder's posterior mean (no KL, no sampling:
+    the world model decodes means)."""
+    mu, _ = vae.encode_moments(video_BTHWC)
+    recon = vae.decode_raw(jax.lax.stop_gradient(mu))
+    err = recon - video_BTHWC.astype(jnp.float32)
+    mse = jnp.mean(jnp.square(err))
+    l1 = jnp.mean(jnp.abs(err))
+    return mse + weights.l1 * l1, {"mse": mse, "l1": l1}
+
+
+def make_decoder_optimizer(lr: float, params) -> optax.GradientTransformation:
+    """AdamW (the VAE stage's) on the decoder side, nothing on the encoder side."""
+    return optax.multi_transform({"train": make_optimizer(lr), "frozen": optax.set_to_zero()}, decoder_labels(params))
+
+
+def make_decoder_train_step(graphdef: nnx.GraphDef, tx: optax.GradientTransformation, weights: VAELossWeights):
+    """-> jitted ``step(state, video_BTHWC uint8) -> (state, metrics)``, state donated; ``tx`` from
+    :func:`make_decoder_optimizer` (the encoder side gets zero updates)."""
+
+    def loss_fn(params, rest, video):
+        return decoder_loss(nnx.merge(graphdef, params, rest), video, weights)
+
+    def step(state: TrainState, video_uint8: jax.Array):
+        video = frames_to_model(video_uint8)
+        (loss, parts), grads = jax.value_and_grad(loss_fn, has_aux=True)(state.params, state.rest, video)
+        updates, opt_state = tx.update(grads, state.opt_state, state.params)
+        params = optax.apply_updates(state.params, updates)
+        metrics = {"loss": loss, **parts, "psnr": psnr_from_mse(parts["mse"]), "grad_norm": optax.tree.norm(grads)}
+        return state.replace(params=params, opt_state=opt_state, step=state.step + 1), metrics
+
+    return jax.jit(step, donate_argnums=(0,))
+
+
 def psnr_from_mse(mse_pm1: jax.Array) -> jax.Array:
     """PSNR in dB of a mean squared error measured on [-1, 1] images (peak-to-peak 2)."""
     return 10.0 * jnp.log10(4.0 / jnp.maximum(mse_pm1, 1e-12))
@@ -85,6 +138,12 @@ def make_reconstruct(graphdef: nnx.GraphDef):
         return jnp.clip((recon + 1.0) * 127.5, 0.0, 255.0).astype(jnp.uint8)
 
     return jax.jit(reconstruct)
+
+
+def psnr_per_latent_step(rec_BTHW3: np.ndarray, gt_BTHW3: np.ndarray, k: int) -> list[float]:
+    """PSNR (dB) of each latent frame's video frames: [frame 0], then frames k(j-1)+1 .. kj for j >= 1."""
+    spans = [(0, 1)] + [(k * (j - 1) + 1, k * j + 1) for j in range(1, 1 + (rec_BTHW3.shape[1] - 1) // k)]
+    return [psnr_uint8(rec_BTHW3[:, a:b], gt_BTHW3[:, a:b]) for a, b in spans]
 
 
 def psnr_uint8(a: np.ndarray, b: np.ndarray) -> float:

@@ -25,16 +25,16 @@ def data(tiny_duet):
 
 @pytest.fixture(scope="module")
 def run(data, tmp_path_factory):
-    """The VAE and stages 1-3 with the test preset (stage 4 has its own tests)."""
+    """The VAE (both stages) and stages 1-3 with the test preset (stage 4 has its own tests)."""
     out = tmp_path_factory.mktemp("run")
-    for stage in ("vae", "sp", "mp-bidirectional", "mp-causal"):
+    for stage in ("vae", "vae-decoder", "sp", "mp-bidirectional", "mp-causal"):
         assert cli.main([stage, "--preset", "test", "--data", str(data), "--out", str(out)]) == 0
     return out
 
 
 def test_stages_chain_and_write_their_outputs(run):
     cfg = json.loads((REPO / "training" / "configs" / "test.json").read_text())
-    for stage in ("vae", "sp", "mp-bidirectional", "mp-causal"):
+    for stage in ("vae", "vae-decoder", "sp", "mp-bidirectional", "mp-causal"):
         assert (model_dir(run, stage) / "config.json").is_file(), stage
         metrics = read_metrics(run / stage / "metrics.jsonl")
         assert [m["step"] for m in metrics] == list(range(1, cfg[stage]["steps"] + 1)), stage
@@ -44,7 +44,9 @@ def test_stages_chain_and_write_their_outputs(run):
         assert list((run / stage / "samples").glob("*.mp4")), stage
     summary = json.loads((run / "vae" / "summary.json").read_text())
     assert len(summary["latent_std"]) == 4 and all(s > 0 for s in summary["latent_std"])
-    assert set(STAGES) >= {"vae", "sp", "mp-bidirectional", "mp-causal", "self-forcing"}
+    decoder = json.loads((run / "vae-decoder" / "summary.json").read_text())
+    assert len(decoder["after"]["test_psnr_by_latent_db"]) == 1 + (cfg["vae-decoder"]["num_frames"] - 1) // 4
+    assert set(STAGES) >= {"vae", "vae-decoder", "sp", "mp-bidirectional", "mp-causal", "self-forcing"}
 
 
 def test_sp_stage_keeps_the_player_embedding_at_zero_and_mp_learns_it(run):

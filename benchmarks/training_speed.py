@@ -1,0 +1,124 @@
+"""Training speed per stage (steps/s, tokens/s) of the real pipeline, measured on this machine.
+
+    .venv/bin/python -m benchmarks.training_speed                              # tiny preset, ~10 min
+    .venv/bin/python -m benchmarks.training_speed --run runs/tiny              # summarise a finished run instead
+    .venv/bin/python -m benchmarks.training_speed --preset test --steps 10 --episodes 4   # smoke run
+
+Default mode: records a small dataset with the engine, then runs ``solaris-train all`` with every
+stage's config from ``training/configs/<preset>.json`` (batch size, clip length, learning rate as
+shipped) but only ``--steps`` updates per stage (Self Forcing: iterations), in a scratch directory.
+``--run DIR`` summarises the ``metrics.jsonl`` of an existing run directory instead (e.g. the run that
+made the shipped model; its numbers are as noisy as the machine was then).
+
+Per stage: the median of the logged ``steps_per_s`` / ``tokens_per_s`` intervals, leaving out the first
+interval (it holds the compilation). Tokens are what the stage's model sees per update: pixels of the
+clips for the VAE, latent tokens (batch x players x latent frames x tokens per frame) for the DiT stages.
+Writes ``benchmarks/results/training_speed.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+RESULTS = Path(__file__).parent / "results" / "training_speed.json"
+STAGES = ("vae", "sp", "mp-bidirectional", "mp-causal", "self-forcing")
+
+
+def summarise_stage(metrics_path: Path) -> dict | None:
+    """Median steps/s and tokens/s over the logged intervals of one stage, the first left out."""
+    if not metrics_path.is_file():
+        return None
+    rows = [json.loads(line) for line in metrics_path.read_text().splitlines() if line.strip()]
+    rows = [r for r in rows if "steps_per_s" in r]
+    if not rows:
+        return None
+    timed = rows[1:] if len(rows) > 1 else rows
+    return {"steps": rows[-1]["step"], "intervals": len(timed),
+            "steps_per_s": statistics.median(r["steps_per_s"] for r in timed),
+            "tokens_per_s": statistics.median(r["tokens_per_s"] for r in timed),
+            "wall_s": rows[-1]["time"] - rows[0]["time"] if len(rows) > 1 else None}
+
+
+def summarise_run(run: Path, stage_cfg: dict | None) -> dict:
+    stages = {}
+    for stage in STAGES:
+        s = summarise_stage(run / stage / "metrics.jsonl")
+        if s is None:
+            continue
+        if stage_cfg and stage in stage_cfg:
+            sc = stage_cfg[stage]
+            s["batch_size"], s["num_frames"] = sc["batch_size"], sc["num_frames"]
+        stages[stage] = s
+    return stages
+
+
+def measure(preset: str, steps: int, episodes: int, workdir: Path) -> tuple[dict, dict]:
+    """Collect ``episodes`` with the engine and run every stage for ``steps`` updates in ``workdir``."""
+    from training import cli
+    from training.train import load_stage_config
+
+    cfg = load_stage_config(preset)
+    cfg["collect"].update(episodes=episodes, test_fraction=0.25, seed=7)
+    for stage in STAGES:
+        n = max(steps // 3, 3) if stage == "self-forcing" else steps
+        log_every = max(n // 6, 1)
+        cfg[stage].update(steps=n, log_every=log_every, ckpt_every=n, sample_every=n)
+        if stage == "vae":
+            cfg[stage].update(eval_clips=4, stats_clips=8)
+    config_path = workdir / "speed_config.json"
+    config_path.write_text(json.dumps(cfg, indent=1))
+    t0 = time.perf_counter()
+    rc = cli.main(["all", "--config", str(config_path), "--data", str(workdir / "data"),
+                   "--out", str(workdir / "run")])
+    if rc:
+        raise SystemExit(f"solaris-train all failed with exit code {rc}")
+    return summarise_run(workdir / "run", cfg), {"total_wall_s": time.perf_counter() - t0, "config": cfg}
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m benchmarks.training_speed", description=__doc__.split("\n\n")[0])
+    p.add_argument("--preset", default="tiny")
+    p.add_argument("--steps", type=int, default=30, help="updates per stage (Self Forcing: a third, >= 3)")
+    p.add_argument("--episodes", type=int, default=8, help="engine episodes recorded for the measurement")
+    p.add_argument("--run", default=None, help="summarise this existing run directory instead of measuring")
+    p.add_argument("--workdir", default=None, help="scratch directory (default: a temporary one)")
+    p.add_argument("--out", default=str(RESULTS))
+    args = p.parse_args(argv)
+
+    load_before = os.getloadavg()
+    if args.run:
+        run = Path(args.run)
+        cfg_path = run / "train_config.json"
+        stage_cfg = json.loads(cfg_path.read_text()) if cfg_path.is_file() else None
+        stages, extra = summarise_run(run, stage_cfg), {"run": str(run)}
+    else:
+        with tempfile.TemporaryDirectory(dir=args.workdir) as tmp:
+            stages, extra = measure(args.preset, args.steps, args.episodes, Path(tmp))
+        extra = {"mode": "measured", "steps_per_stage": args.steps, "episodes": args.episodes,
+                 "total_wall_s": extra["total_wall_s"]}
+    if not stages:
+        raise SystemExit("no stage metrics found")
+
+    from benchmarks.machine import machine_info
+    from training.samples import write_json
+
+    result = {"benchmark": "training_speed", "preset": args.preset, **extra, "stages": stages,
+              "machine": machine_info(load_before)}
+    print(f"{'stage':<18}{'steps/s':>10}{'tokens/s':>12}{'batch':>7}{'frames':>8}")
+    for stage, s in stages.items():
+        print(f"{stage:<18}{s['steps_per_s']:>10.3f}{s['tokens_per_s']:>12.0f}{s.get('batch_size', '-'):>7}"
+              f"{s.get('num_frames', '-'):>8}")
+    write_json(Path(args.out), result)
+    print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

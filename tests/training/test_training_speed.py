@@ -1,0 +1,28 @@
+"""benchmarks.training_speed: the per-stage summary of metrics.jsonl (the compile interval left out)."""
+
+import json
+
+from benchmarks.training_speed import summarise_run, summarise_stage
+
+
+def _write_metrics(path, rows):
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("".join(json.dumps(r) + "\n" for r in rows))
+
+
+def test_summary_leaves_out_the_compile_interval(tmp_path):
+    rows = [{"step": 10 * (i + 1), "time": 100.0 + 10 * i, "steps_per_s": sps, "tokens_per_s": 100 * sps}
+            for i, sps in enumerate([0.1, 2.0, 1.0, 3.0])]
+    _write_metrics(tmp_path / "mp-causal" / "metrics.jsonl", rows)
+    s = summarise_stage(tmp_path / "mp-causal" / "metrics.jsonl")
+    assert s["steps"] == 40 and s["intervals"] == 3
+    assert s["steps_per_s"] == 2.0 and s["tokens_per_s"] == 200.0  # median of 2, 1, 3 (0.1 = compile)
+    assert s["wall_s"] == 30.0
+
+
+def test_run_summary_lists_only_stages_with_metrics(tmp_path):
+    _write_metrics(tmp_path / "vae" / "metrics.jsonl", [{"step": 5, "time": 0.0, "steps_per_s": 1.0,
+                                                         "tokens_per_s": 9.0}])
+    cfg = {"vae": {"batch_size": 4, "num_frames": 5}}
+    stages = summarise_run(tmp_path, cfg)
+    assert list(stages) == ["vae"] and stages["vae"]["batch_size"] == 4 and stages["vae"]["steps_per_s"] == 1.0
