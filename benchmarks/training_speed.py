@@ -28,7 +28,7 @@ import time
 from pathlib import Path
 
 RESULTS = Path(__file__).parent / "results" / "training_speed.json"
-STAGES = ("vae", "sp", "mp-bidirectional", "mp-causal", "self-forcing")
+STAGES = ("vae", "vae-decoder", "sp", "mp-bidirectional", "mp-causal", "self-forcing")  # training.train.STAGES
 
 
 def summarise_stage(metrics_path: Path) -> dict | None:
@@ -90,6 +90,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--run", default=None, help="summarise this existing run directory instead of measuring")
     p.add_argument("--workdir", default=None, help="scratch directory (default: a temporary one)")
     p.add_argument("--out", default=str(RESULTS))
+    p.add_argument("--note", default=None, help="recorded as is (e.g. how loaded the machine was during --run)")
     args = p.parse_args(argv)
 
     load_before = os.getloadavg()
@@ -97,7 +98,7 @@ def main(argv: list[str] | None = None) -> int:
         run = Path(args.run)
         cfg_path = run / "train_config.json"
         stage_cfg = json.loads(cfg_path.read_text()) if cfg_path.is_file() else None
-        stages, extra = summarise_run(run, stage_cfg), {"run": str(run)}
+        stages, extra = summarise_run(run, stage_cfg), {"mode": "summarised run", "run": str(run)}
     else:
         with tempfile.TemporaryDirectory(dir=args.workdir) as tmp:
             stages, extra = measure(args.preset, args.steps, args.episodes, Path(tmp))
@@ -109,7 +110,7 @@ def main(argv: list[str] | None = None) -> int:
     from benchmarks.machine import machine_info
     from training.samples import write_json
 
-    result = {"benchmark": "training_speed", "preset": args.preset, **extra, "stages": stages,
+    result = {"benchmark": "training_speed", "preset": args.preset, **extra, "note": args.note, "stages": stages,
               "machine": machine_info(load_before)}
     print(f"{'stage':<18}{'steps/s':>10}{'tokens/s':>12}{'batch':>7}{'frames':>8}")
     for stage, s in stages.items():

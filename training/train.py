@@ -488,6 +488,9 @@ def install_default(model: str | Path, dest: str | Path | None = None, extra_fil
         (tmp / "model").rmdir()
         for f in map(Path, extra_files):
             shutil.copy2(f, tmp / f.name)
+        tmp.chmod(0o755)  # mkdtemp makes it private; the package directory is world-readable
+        for f in tmp.iterdir():
+            f.chmod(0o644)
         if dest.exists():
             old = Path(tempfile.mkdtemp(prefix=f".{dest.name}.old-", dir=dest.parent))
             dest.replace(old / dest.name)
