@@ -3,7 +3,8 @@
     solaris-env info                                   # envs, models, start scenes, tasks
     solaris-env rollout --kind real --steps 200 --policy bot --out rollout.mp4
     solaris-env rollout --kind dream --preset tiny --steps 50 --out dream.mp4 --rrd dream.rrd
-    solaris-env play --kind real                       # a local web page: drive Alpha with the keyboard
+    solaris-env play --kind real                       # a local web page: drive Alpha with keyboard and mouse
+    solaris-env play --kind dream --agent Bravo --window  # the same in an OpenCV window (needs a display)
 
 Heavy frameworks (jax, torch) are imported only inside the commands, so ``--help`` is instant.
 """
@@ -128,155 +129,19 @@ def cmd_rollout(args) -> int:
 
 
 def cmd_play(args) -> int:
-    """Serve a local page that drives one player with the keyboard; the others follow ``--policy``."""
-    session = PlaySession(_make_env(args, max_steps=args.max_steps), args.agent, args.policy, args.seed)
-    server = make_play_server(session, args.host, args.port)
-    host, port = server.server_address[:2]
-    print(f"playing {args.kind} as {args.agent}: open http://{host}:{port}/ (Ctrl-C to stop)")
-    try:
-        server.serve_forever()
-    except KeyboardInterrupt:
-        pass
-    finally:
-        server.server_close()
+    """Drive ``--agent`` with keyboard and mouse (a local web page, or ``--window``); the others follow ``--policy``."""
+    from solaris_env.play import PlaySession, run_window, serve_play, window_problem
+
+    if args.window and (problem := window_problem()) is not None:
+        raise SystemExit(f"solaris-env play --window: {problem}; drop --window to play in a web page instead")
+    env = _make_env(args, max_steps=args.max_steps)
+    session = PlaySession(env, args.agent, args.policy, args.seed)
+    fps = args.fps if args.fps is not None else env.metadata["render_fps"]  # default: real time
+    if args.window:
+        run_window(session, fps)
+    else:
+        serve_play(session, args.host, args.port, fps)
     return 0
-
-
-# ---------------------------------------------------------------------------------------------
-# play: a local web page (works without a display or a GUI build of OpenCV)
-# ---------------------------------------------------------------------------------------------
-
-PLAY_PAGE = """<!doctype html><html><head><title>solaris-env play</title><style>
-body{background:#222;color:#ddd;font:14px sans-serif;text-align:center}
-img{image-rendering:pixelated;width:90vw;max-width:1400px;cursor:crosshair}</style></head><body>
-<p>Click the view to capture the mouse (camera). WASD move, Space jump, Shift sneak, R sprint, left/right click
-attack/use, 1-9 hotbar, Q drop, E inventory, F swap hands, arrow keys turn, Backspace new episode.</p>
-<img id="view" src="/frame.png"><p id="status"></p><script>
-const KEYS={KeyW:"forward",KeyS:"back",KeyA:"left",KeyD:"right",Space:"jump",ShiftLeft:"sneak",KeyR:"sprint",
- KeyQ:"drop",KeyE:"inventory",KeyF:"swapHands",Escape:"ESC"};
-for(let i=1;i<=9;i++)KEYS["Digit"+i]="hotbar."+i;
-const held={},cam=[0,0],view=document.getElementById("view"),status=document.getElementById("status");
-let reset=false;
-document.addEventListener("keydown",e=>{if(e.code==="Backspace")reset=true;
- if(e.code==="ArrowLeft")cam[1]-=5;if(e.code==="ArrowRight")cam[1]+=5;if(e.code==="ArrowUp")cam[0]-=5;
- if(e.code==="ArrowDown")cam[0]+=5;if(KEYS[e.code]){held[KEYS[e.code]]=1;e.preventDefault();}});
-document.addEventListener("keyup",e=>{if(KEYS[e.code])held[KEYS[e.code]]=0;});
-view.addEventListener("click",()=>view.requestPointerLock());
-document.addEventListener("mousemove",e=>{if(document.pointerLockElement===view){cam[1]+=e.movementX*0.15;
- cam[0]+=e.movementY*0.15;}});
-document.addEventListener("mousedown",e=>{if(e.button===0)held.attack=1;if(e.button===2)held.use=1;});
-document.addEventListener("mouseup",e=>{if(e.button===0)held.attack=0;if(e.button===2)held.use=0;});
-document.addEventListener("contextmenu",e=>e.preventDefault());
-async function loop(){
- const action=Object.assign({},held,{camera:[Math.max(-180,Math.min(180,cam[0])),Math.max(-180,Math.min(180,cam[1]))]});
- cam[0]=0;cam[1]=0;
- const r=await fetch(reset?"/reset":"/step",{method:"POST",body:JSON.stringify(action)});reset=false;
- if(r.ok){view.src=URL.createObjectURL(await r.blob());status.textContent=r.headers.get("X-Status");}
- else status.textContent=await r.text();
- setTimeout(loop,50);}
-loop();
-</script></body></html>"""
-
-
-class PlaySession:
-    """One env driven by a keyboard player (``agent``) and ``policy`` for the others; thread-safe."""
-
-    def __init__(self, env, agent: str, policy: str, seed: int):
-        import threading
-
-        if agent not in env.possible_agents:
-            raise ValueError(f"--agent must be one of {env.possible_agents}, got {agent!r}")
-        self.env, self.agent, self.policy, self.seed = env, agent, policy, seed
-        self.lock = threading.Lock()
-        self.episode, self.returns = -1, 0.0
-        self.reset()
-
-    def reset(self) -> bytes:
-        with self.lock:
-            self.episode += 1
-            self.obs, _ = self.env.reset(seed=self.seed + self.episode)
-            self.others = _opponents(self.env.unwrapped, self.policy, self.seed + self.episode)
-            self.returns = 0.0
-            return self.frame_png()
-
-    def step(self, action: dict) -> bytes:
-        """One env step with the player's action (a MineRL dict; missing keys count as not pressed)."""
-        from solaris_env.spaces import ACTION_KEYS, noop, validate_action
-
-        unknown = sorted(set(action) - set(ACTION_KEYS))
-        if unknown:
-            raise ValueError(f"unknown action key {unknown[0]!r}; expected keys {list(ACTION_KEYS)}")
-        full = validate_action({**noop(), **action}, agent=self.agent)
-        with self.lock:
-            if self.agent not in self.env.agents:
-                raise ValueError("the episode has ended: press Backspace (POST /reset) for a new one")
-            actions = {a: self.others[a].act(self.obs[a]) for a in self.env.agents if a != self.agent}
-            actions[self.agent] = full
-            self.obs, rewards, *_ = self.env.step(actions)
-            self.returns += rewards.get(self.agent, 0.0)
-            return self.frame_png()
-
-    def frame_png(self) -> bytes:
-        import cv2
-
-        from solaris_env.env_common import side_by_side
-
-        sheet = side_by_side(self.env.unwrapped.step_frames()[:, -1])
-        ok, png = cv2.imencode(".png", sheet[..., ::-1])
-        if not ok:
-            raise RuntimeError("PNG encoding failed")
-        return png.tobytes()
-
-    def status(self) -> str:
-        return f"episode {self.episode}, {self.agent} return {self.returns:.3f}, live {self.env.agents}"
-
-
-def make_play_server(session: PlaySession, host: str = "127.0.0.1", port: int = 8765):
-    """A ``ThreadingHTTPServer``: GET / (the page), GET /frame.png, POST /step and /reset (JSON action -> PNG)."""
-    import json
-    from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
-
-    class Handler(BaseHTTPRequestHandler):
-        def log_message(self, *args):  # quiet
-            pass
-
-        def _send(self, code: int, body: bytes, kind: str) -> None:
-            self.send_response(code)
-            self.send_header("Content-Type", kind)
-            self.send_header("Content-Length", str(len(body)))
-            self.send_header("X-Status", session.status())
-            self.end_headers()
-            self.wfile.write(body)
-
-        def do_GET(self):
-            if self.path == "/":
-                self._send(200, PLAY_PAGE.encode(), "text/html; charset=utf-8")
-            elif self.path.startswith("/frame.png"):
-                with session.lock:
-                    png = session.frame_png()
-                self._send(200, png, "image/png")
-            else:
-                self._send(404, b"not found", "text/plain")
-
-        def do_POST(self):
-            if self.path not in ("/step", "/reset"):
-                self._send(404, b"not found", "text/plain")
-                return
-            try:
-                if self.path == "/reset":
-                    png = session.reset()
-                else:
-                    body = self.rfile.read(int(self.headers.get("Content-Length", 0)))
-                    action = json.loads(body or b"{}")
-                    if not isinstance(action, dict):
-                        raise ValueError(f"the body must be a JSON object (an action), got {type(action).__name__}")
-                    png = session.step(action)
-            except (ValueError, TypeError) as err:  # bad input: say why, keep serving
-                self._send(400, str(err).encode(), "text/plain; charset=utf-8")
-                return
-            self._send(200, png, "image/png")
-
-    return ThreadingHTTPServer((host, port), Handler)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -297,13 +162,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, default=Path("rollout.mp4"), help="the mp4 (all players side by side)")
     p.add_argument("--rrd", type=Path, default=None, help="also write a Rerun recording here")
     p.set_defaults(run=cmd_rollout)
-    p = sub.add_parser("play", help="drive one player with the keyboard in a local web page")
+    p = sub.add_parser("play", help="drive one player with keyboard and mouse (local web page or OpenCV window)")
     _add_env_args(p)
-    p.add_argument("--agent", default="Alpha", help="the player you drive")
+    p.add_argument("--agent", default="Alpha", help="the player you drive (Alpha, Bravo, ...)")
     p.add_argument("--policy", choices=("random", "noop", "bot"), default="noop", help="what drives the others")
     p.add_argument("--max-steps", type=int, default=100_000, help="episode length")
-    p.add_argument("--host", default="127.0.0.1")
-    p.add_argument("--port", type=int, default=8765)
+    p.add_argument("--fps", type=float, default=None, help="env steps per second (default: real time, the env's "
+                   "render_fps: 20 for real, 5 for dream; the env may be slower)")
+    p.add_argument("--window", action="store_true", help="an OpenCV window instead of the web page "
+                   "(needs a display and a GUI build of OpenCV)")
+    p.add_argument("--host", default="127.0.0.1", help="web page: the address to listen on (keep it local)")
+    p.add_argument("--port", type=int, default=8765, help="web page: the port (0: any free one)")
     p.set_defaults(run=cmd_play)
     return parser
 

@@ -1,15 +1,10 @@
-"""``solaris-env``: fast --help, info, rollout (real and dream) to mp4 (+ rrd), and the play page's server."""
+"""``solaris-env``: fast --help, info, rollout (real and dream) to mp4 (+ rrd), play's argument errors."""
 
-import json
 import subprocess
 import sys
-import threading
 import time
-import urllib.error
-import urllib.request
 
 import cv2
-import numpy as np
 import pytest
 
 from solaris_env import cli_env
@@ -74,31 +69,10 @@ def test_rollout_argument_errors(tmp_path):
         cli_env.main(["rollout", "--steps", "0"])
 
 
-def test_play_server_steps_the_env_from_json_actions(real):
-    session = cli_env.PlaySession(real(), agent="Alpha", policy="bot", seed=0)
-    server = cli_env.make_play_server(session, port=0)
-    thread = threading.Thread(target=server.serve_forever, daemon=True)
-    thread.start()
-    base = f"http://127.0.0.1:{server.server_address[1]}"
-
-    def post(path, body):
-        return urllib.request.urlopen(urllib.request.Request(base + path, data=body, method="POST"), timeout=60)
-
-    try:
-        assert b"solaris-env play" in urllib.request.urlopen(base + "/", timeout=60).read()
-        before = session.env.game.players[0].pos.copy()
-        for _ in range(10):
-            reply = post("/step", json.dumps({"forward": 1, "camera": [0.0, 2.0]}).encode())
-        png = cv2.imdecode(np.frombuffer(reply.read(), np.uint8), cv2.IMREAD_COLOR)
-        assert png.shape == (36, 72, 3) and "episode 0" in reply.headers["X-Status"]
-        assert np.linalg.norm(session.env.game.players[0].pos - before) > 0.3  # Alpha walked
-        for body, message in ((b"{not json", b"Expecting"), (b"[1]", b"JSON object"),
-                              (json.dumps({"fly": 1}).encode(), b"'fly'"),
-                              (json.dumps({"jump": 3}).encode(), b"'jump'")):
-            with pytest.raises(urllib.error.HTTPError) as err:
-                post("/step", body)
-            assert err.value.code == 400 and message in err.value.read()
-        assert post("/reset", b"").status == 200 and session.episode == 1
-    finally:
-        server.shutdown()
-        server.server_close()
+def test_play_window_without_a_display_is_a_clear_error(monkeypatch):
+    # the server and the page are tested in test_play.py
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    monkeypatch.setattr(sys, "platform", "linux")
+    with pytest.raises(SystemExit, match="--window: no display .* drop --window"):
+        cli_env.main(["play", "--window"])
