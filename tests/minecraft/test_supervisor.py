@@ -68,13 +68,16 @@ def test_early_exit_and_timeout_are_clear_errors():
             sup.start("nope", ["/nonexistent/binary"])
 
 
+# The parent enters the supervisor's context before it reports the pids (no signal can land outside it) and
+# restores Python's SIGINT handler: a parent started in the background (nohup, a CI runner) inherits SIGINT
+# ignored, and Python then never raises KeyboardInterrupt (the case of a terminal's Ctrl-C is what we test).
 SCRIPT = textwrap.dedent("""
-    import sys, time
+    import signal, sys, time
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     from solaris_env.engine.minecraft.supervisor import Supervisor
-    sup = Supervisor()
-    child = sup.start("tree", ["sh", "-c", "sleep 60 & echo $$ $!; wait"])
-    print(sup.read_line(child, 10), flush=True)
-    with sup:
+    with Supervisor() as sup:
+        child = sup.start("tree", ["sh", "-c", "sleep 60 & echo $$ $!; wait"])
+        print(sup.read_line(child, 10), flush=True)
         time.sleep(60)
 """)
 
