@@ -26,9 +26,9 @@ from solaris_env.env_common import (
     check_render_mode,
 )
 from solaris_env.spaces import (
-    BINARY_KEYS,
     KEYBOARD_DIM,
     MODEL_INDEX,
+    ONCE_KEYS,
     env_action_to_model_vector,
     make_action_space,
     noop,
@@ -39,10 +39,7 @@ from solaris_env.tasks import make_task
 ENGINE_TICKS_PER_SECOND = 20
 DEFAULT_CHECKPOINT = Path(__file__).parent / "assets" / "default"
 
-# Keys that act once per key press in Minecraft: in a step of k ticks they are sent on the first tick only.
-# Movement keys (forward, back, left, right, jump, sneak, sprint) are held for all k ticks.
-ONCE_KEYS = ("attack", "use", "drop", "inventory", "ESC", "swapHands", "pickItem") + tuple(
-    k for k in BINARY_KEYS if k.startswith("hotbar."))
+# ONCE_KEYS (from ``spaces``) act once per key press: in a step of k ticks they are sent on the first tick only.
 _ONCE_INDICES = np.array([MODEL_INDEX[k] for k in ONCE_KEYS])
 
 

@@ -32,7 +32,7 @@ from solaris_env.env_common import (
     check_options,
     check_render_mode,
 )
-from solaris_env.spaces import make_action_space, noop, validate_action
+from solaris_env.spaces import make_action_space, noop, tick_actions, validate_action
 from solaris_env.tasks import make_task
 
 WORLD_CHOICES = ("flat", "normal", "mixed")
@@ -111,13 +111,26 @@ def render_game_views(game: Game, height: int, width: int, view_distance: float 
     return np.asarray(rgb), np.asarray(avatar_id)
 
 
+def screen_position(avatar_id_HW: np.ndarray, player: int) -> dict:
+    """Where ``player`` shows on one screen: ``{"pixels": n, "u": centroid column in [0, 1] (pixel centres,
+    0 = left edge) or None when n == 0}``; the same ``u`` as the ground-truth sidecar's (``capture``)."""
+    mask_HW = avatar_id_HW == player
+    n = int(mask_HW.sum())
+    if n == 0:
+        return {"pixels": 0, "u": None}
+    w = mask_HW.shape[1]
+    u = float(mask_HW.sum(0) @ ((np.arange(w) + 0.5) / w)) / n
+    return {"pixels": n, "u": u}
+
+
 # ---------------------------------------------------------------------------------------------
 # The env
 # ---------------------------------------------------------------------------------------------
 
 
 class RealParallelEnv(PlayerViewsEnv, ParallelEnv):
-    """The voxel engine with every player an agent. One env step is one 20 Hz engine tick.
+    """The voxel engine with every player an agent. One env step is ``ticks_per_step`` 20 Hz engine ticks
+    (default 1).
 
     Args:
         num_players: number of players (1..8); agents are named Alpha, Bravo, Charlie, ...
@@ -131,6 +144,17 @@ class RealParallelEnv(PlayerViewsEnv, ParallelEnv):
         spawn_distance: (min, max) blocks between the first two players at reset.
         view_distance: render distance in blocks (fog ends there).
         hud: draw the hotbar and crosshair.
+        ticks_per_step: engine ticks per env step (k). With k > 1 a step plays like a dream env step of k
+            frames: the first tick gets the whole action, ticks 2..k keep the movement keys held but release
+            the once-keys and the camera (``spaces.tick_actions``); every tick is rendered
+            (``step_frames()`` is (P, k, H, W, 3)), the task scores the step once with all k frames, and the
+            infos are the last tick's, with ``placed``/``mined`` gathered over the k ticks. Use the world
+            model's ``frames_per_step`` to compare a policy in both envs.
+
+    Infos (per agent): ``pos``, ``yaw``, ``pitch`` (the player's pose), ``step``, ``sees`` (other player ->
+    visible on this screen), ``screen`` (other player -> ``{"pixels": avatar pixels on this screen, "u":
+    their centroid's horizontal position in [0, 1], None when no pixel shows}``, from the renderer's
+    per-pixel player ids), and after a step ``action_record``, ``placed``, ``mined``.
 
     ``reset(seed, options)`` options: ``{"world": "flat" | "normal"}`` overrides the world kind for the
     episode; ``{"engine_state": EngineState}`` starts from a snapshot instead of a fresh world. Other keys
@@ -144,7 +168,7 @@ class RealParallelEnv(PlayerViewsEnv, ParallelEnv):
     def __init__(self, num_players: int = 2, world: str = "flat", resolution: int | tuple[int, int] = 64,
                  max_steps: int = 1000, render_mode: str | None = None,
                  spawn_distance: tuple[float, float] = (6.0, 10.0), view_distance: float = DEFAULT_VIEW_DISTANCE,
-                 hud: bool = True, task=None):
+                 hud: bool = True, task=None, ticks_per_step: int = 1):
         if not 1 <= num_players <= len(PLAYER_NAMES):
             raise ValueError(f"num_players must be in [1, {len(PLAYER_NAMES)}], got {num_players}")
         if world not in WORLD_CHOICES:
@@ -154,10 +178,14 @@ class RealParallelEnv(PlayerViewsEnv, ParallelEnv):
             raise ValueError(f"resolution must be at least 8x8, got {(h, w)}")
         if max_steps < 1:
             raise ValueError(f"max_steps must be >= 1, got {max_steps}")
+        if not isinstance(ticks_per_step, (int, np.integer)) or ticks_per_step < 1:
+            raise ValueError(f"ticks_per_step must be an int >= 1, got {ticks_per_step!r}")
         check_render_mode(render_mode)
         if not 0 < spawn_distance[0] <= spawn_distance[1]:
             raise ValueError(f"spawn_distance must be (min, max) with 0 < min <= max, got {spawn_distance}")
         self.num_players, self.world_kind, self.max_steps = num_players, world, max_steps
+        self.ticks_per_step = int(ticks_per_step)
+        self.metadata = {**type(self).metadata, "render_fps": 20 / self.ticks_per_step}
         self.render_mode = render_mode
         self.height, self.width = h, w
         self.spawn_distance, self.view_distance, self.hud = spawn_distance, view_distance, hud
@@ -169,7 +197,7 @@ class RealParallelEnv(PlayerViewsEnv, ParallelEnv):
         self._action_spaces = {a: make_action_space() for a in self.possible_agents}
         self.game: Game | None = None
         self._frames: np.ndarray | None = None  # (P, H, W, 3) of the current state
-        self._step_frames: np.ndarray | None = None  # (P, 1, H, W, 3): one tick per step
+        self._step_frames: np.ndarray | None = None  # (P, k, H, W, 3): every tick of the last step
         self._steps = 0
         self.np_random: np.random.Generator | None = None  # seeded by reset(seed)
 
@@ -187,6 +215,7 @@ class RealParallelEnv(PlayerViewsEnv, ParallelEnv):
         self.agents = list(self.possible_agents)
         self._steps = 0
         self._frames = self._render_views()
+        self._step_frames = self._frames[:, None]
         infos = [self._info(i) for i in range(self.num_players)]
         self.task.reset(self._frames, truth=infos)
         return self._observations(), dict(zip(self.possible_agents, infos))
@@ -198,11 +227,16 @@ class RealParallelEnv(PlayerViewsEnv, ParallelEnv):
         # players whose agent already terminated stand still
         per_player = [validate_action(actions[a], agent=a) if a in self.agents else noop()
                       for a in self.possible_agents]
-        events = self.game.step(per_player)
+        ticks_P = [tick_actions(act, self.ticks_per_step) for act in per_player]  # P lists of k tick actions
+        frames, events = [], []
+        for t in range(self.ticks_per_step):
+            events.append(self.game.step([ticks[t] for ticks in ticks_P]))
+            frames.append(self._render_views())
         self._steps += 1
-        self._frames = self._render_views()
-        infos = [self._info(i, events[i]) for i in range(self.num_players)]
-        outcome = self.task.step(self._frames[:, None], per_player, truth=infos)
+        self._frames = frames[-1]
+        self._step_frames = np.stack(frames, axis=1)  # (P, k, H, W, 3)
+        infos = [self._info(i, [tick[i] for tick in events]) for i in range(self.num_players)]
+        outcome = self.task.step(self._step_frames, per_player, truth=infos)
         return self._step_outputs(outcome.rewards_P, outcome.terminations_P, self._steps >= self.max_steps, infos)
 
     def engine_state(self) -> EngineState:
@@ -226,15 +260,16 @@ class RealParallelEnv(PlayerViewsEnv, ParallelEnv):
 
     def _render_views(self) -> np.ndarray:
         rgb, self._avatar_id = render_game_views(self.game, self.height, self.width, self.view_distance, self.hud)
-        self._step_frames = rgb[:, None]
         return rgb
 
-    def _info(self, i: int, event=None) -> dict:
+    def _info(self, i: int, events=None) -> dict:
+        """Player i's info now; ``events``: its TickEvents of each tick of the step (None at reset)."""
         p = self.game.players[i]
-        seen = self._avatar_id[i]
-        others = {q.name: bool((seen == j).any()) for j, q in enumerate(self.game.players) if j != i}
-        info = {"pos": p.pos.copy(), "yaw": p.yaw, "pitch": p.pitch, "step": self._steps, "sees": others}
-        if event is not None:
-            info["action_record"] = event.record
-            info["placed"], info["mined"] = event.placed, event.mined
+        screen = {q.name: screen_position(self._avatar_id[i], j) for j, q in enumerate(self.game.players) if j != i}
+        info = {"pos": p.pos.copy(), "yaw": p.yaw, "pitch": p.pitch, "step": self._steps,
+                "sees": {name: s["pixels"] > 0 for name, s in screen.items()}, "screen": screen}
+        if events is not None:
+            info["action_record"] = events[-1].record
+            info["placed"] = [cell for e in events for cell in e.placed]
+            info["mined"] = [cell for e in events for cell in e.mined]
         return info

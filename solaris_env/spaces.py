@@ -121,6 +121,27 @@ def noop() -> dict[str, Any]:
     return action
 
 
+# Keys that act once per key press in Minecraft: in an env step of k engine ticks (the dream env's
+# k = frames_per_step, the real env's ``ticks_per_step``) they are sent on the first tick only. Movement keys
+# (forward, back, left, right, jump, sneak, sprint) are held for all k ticks.
+ONCE_KEYS = ("attack", "use", "drop", "inventory", "ESC", "swapHands", "pickItem") + HOTBAR_KEYS
+
+
+def tick_actions(action: Mapping[str, Any], k: int) -> list[dict[str, Any]]:
+    """One env step's action -> the k per-tick env actions of the step.
+
+    Tick 0 carries the whole action; ticks 1..k-1 keep the held movement keys but release the ``ONCE_KEYS``
+    and the camera (the camera delta is a per-step turn, not repeated k times). The dream env applies the
+    same rule to the model's action vectors (``dream_env.expand_action``).
+    """
+    if not isinstance(k, (int, np.integer)) or k < 1:
+        raise ValueError(f"k (ticks per step) must be an int >= 1, got {k!r}")
+    first = validate_action(action)
+    held = dict(first, **{key: 0 for key in ONCE_KEYS})
+    held[CAMERA_KEY] = np.zeros(2, dtype=np.float32)
+    return [first] + [dict(held) for _ in range(int(k) - 1)]
+
+
 def _where(agent: str | None) -> str:
     """Message prefix naming the agent, if any."""
     return f"agent {agent!r}: " if agent is not None else ""

@@ -21,12 +21,26 @@ Tasks (``TASKS``, the names ``task=`` accepts):
   a player terminates once it has collected ``target`` novel views.
 * ``"see_other_player"`` (:class:`SeeOtherPlayerTask`, real env only: ground truth): each step, the fraction
   of the other players that are visible on screen (from the renderer's per-pixel player ids).
+
+Partner tasks (two players; :class:`PartnerTask`): ONE reward definition, scored from a ``source`` chosen at
+construction: ``"judge"`` (the shipped CNN judges of ``solaris_env.judges`` read the frames, one batched call
+over the players: works in the dream and the real env) or ``"truth"`` (the real env's ground truth; the dream
+env refuses it). The judge answers the same question the truth answers exactly, so the dream return of a
+policy (judge) and its real return (truth) are on one scale. Registered twice: ``"<name>"`` is the judge
+variant, ``"<name>_truth"`` the ground-truth one.
+
+* ``"face_partner"`` / ``"face_partner_truth"`` (:class:`FacePartnerTask`): 1 for each step that ends with
+  the partner in the centre third of the player's screen, else 0.
+* ``"approach_partner"`` / ``"approach_partner_truth"`` (:class:`ApproachPartnerTask`): +1 for a step after
+  which the player is clearly closer to the partner than ``gap`` steps before (while the partner is on
+  screen), -1 when clearly farther, else 0.
 """
 
 from __future__ import annotations
 
 import copy
-from collections.abc import Mapping, Sequence
+import functools
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -157,10 +171,179 @@ class SeeOtherPlayerTask(Task):
 
 
 # ---------------------------------------------------------------------------------------------
+# Partner tasks (two players): the judges read the frames, or the engine gives the truth
+# ---------------------------------------------------------------------------------------------
+
+REWARD_SOURCES = ("judge", "truth")
+
+
+@functools.lru_cache(maxsize=4)
+def shared_judge(directory: str | None = None):
+    """The probes of ``directory`` (None: the shipped ``solaris_env/assets/judges/``), loaded once per process:
+    tasks are deep-copied per world, so they look the judge up here instead of holding it."""
+    from solaris_env.judges import Judge
+
+    return Judge.load() if directory is None else Judge.load(directory)
+
+
+def partner_screen(truth_player: Mapping) -> dict:
+    """The partner's entry of one player's ground truth: ``{"pixels": n, "u": centroid in [0, 1] | None}``."""
+    screen = truth_player.get("screen")
+    if screen is None:
+        raise ValueError("ground truth has no 'screen' entry (RealParallelEnv infos have it); got keys "
+                         f"{sorted(truth_player)}")
+    if len(screen) != 1:
+        raise ValueError(f"a partner task needs exactly one other player; the truth lists {sorted(screen)}")
+    return next(iter(screen.values()))
+
+
+def judge_centred(judge, frames_NHW3: np.ndarray) -> np.ndarray:
+    """(N,) bool: the judge sees the partner ("visible": "yes") in the centre ("position": "center")."""
+    visible_N = np.array(judge.answer("visible", frames_NHW3)) == "yes"
+    return visible_N & (np.array(judge.answer("position", frames_NHW3)) == "center")
+
+
+class PartnerTask(Task):
+    """Base of the two-player tasks: a reward about the partner (the other player), from one ``source``.
+
+    Args:
+        source: ``"judge"``: the CNN judges answer from each player's frames (dream and real env);
+            ``"truth"``: the real env's ground truth answers (``requires_truth``; the dream env refuses it).
+        judge_dir: probe weights for ``source="judge"`` (None: the shipped ``solaris_env/assets/judges/``).
+
+    The thresholds (pixels that make a player "visible", the motion threshold) are the judges' labelling
+    rules (``solaris_env.judges.config.LabelConfig``), so the truth is what the probes were trained to answer.
+    """
+
+    base_name = "partner"
+
+    def __init__(self, source: str = "judge", judge_dir: str | None = None):
+        from solaris_env.judges.config import LabelConfig
+
+        if source not in REWARD_SOURCES:
+            raise ValueError(f"source must be one of {REWARD_SOURCES}, got {source!r}")
+        if judge_dir is not None and source != "judge":
+            raise ValueError(f"judge_dir is only used with source='judge', got source={source!r}")
+        self.source, self.judge_dir = source, None if judge_dir is None else str(judge_dir)
+        self.requires_truth = source == "truth"
+        self.name = self.base_name if source == "judge" else f"{self.base_name}_truth"
+        self.labels = LabelConfig()
+
+    @property
+    def judge(self):
+        return shared_judge(self.judge_dir)
+
+    def reset(self, frames_PHW3: np.ndarray, truth: Sequence[Mapping] | None = None) -> None:
+        super().reset(frames_PHW3, truth)
+        if self.num_players != 2:
+            raise ValueError(f"task {self.name!r} is about one partner: it needs num_players=2, got {self.num_players}")
+
+    def _truth(self, truth: Sequence[Mapping] | None) -> Sequence[Mapping]:
+        if truth is None:
+            raise ValueError(f"task {self.name!r} (source='truth') needs the engine's ground truth; in the dream "
+                             f"env use {self.base_name!r} (source='judge')")
+        if len(truth) != self.num_players:
+            raise ValueError(f"truth must hold one dict per player ({self.num_players}), got {len(truth)}")
+        return truth
+
+    def _visible_truth(self, truth_player: Mapping) -> bool:
+        return partner_screen(truth_player)["pixels"] >= self.labels.min_visible_pixels
+
+
+class FacePartnerTask(PartnerTask):
+    """Reward 1 for each step that ends with the partner centred on the player's screen, else 0.
+
+    Judge: for the step's last frame the ``visible`` probe says "yes" and the ``position`` probe "center" (the
+    visibility gate removes most false centres: on 64x64 engine frames with no partner the position probe alone
+    said "center" in 1 of 187 flat and 11 of 176 normal-world views, with the gate in 0 and 6; it cost no true
+    centre). Truth: at least ``min_visible_pixels`` avatar pixels whose centroid lies in the middle third of the
+    screen (the split of the judge's "left" / "center" / "right", ``engine.capture``). Never terminates.
+    """
+
+    base_name = "face_partner"
+
+    def step(self, frames_PkHW3: np.ndarray, actions, truth=None) -> TaskStep:
+        p = frames_PkHW3.shape[0]
+        if self.source == "judge":
+            centred_P = judge_centred(self.judge, frames_PkHW3[:, -1])
+        else:
+            centred_P = np.array([self._centred_truth(t) for t in self._truth(truth)])
+        return TaskStep(centred_P.astype(np.float32), np.zeros(p, bool))
+
+    def _centred_truth(self, truth_player: Mapping) -> bool:
+        from solaris_env.engine.capture import REGION_LEFT_MAX_U, REGION_RIGHT_MIN_U
+
+        u = partner_screen(truth_player)["u"]
+        return self._visible_truth(truth_player) and REGION_LEFT_MAX_U <= u < REGION_RIGHT_MIN_U
+
+
+class ApproachPartnerTask(PartnerTask):
+    """+1 for a step after which the player is clearly closer to the partner than ``gap`` steps before, -1
+    when clearly farther, 0 otherwise; only while the partner is on screen in one of the two frames.
+
+    Judge: the ``visible`` probe says "yes" for either frame and the ``motion`` probe, shown (the frame
+    ``gap`` steps ago, the frame now), answers "closer" / "farther". Truth: the partner is visible (at least
+    ``min_visible_pixels``) in either frame and the distance between the players changed by a log ratio
+    ln(d_now / d_then) beyond -+ ``motion_log_distance_threshold`` (the motion judge's labelling rule). Early in
+    an episode the first frame stands in for the frame ``gap`` steps ago. Never terminates.
+
+    Args:
+        gap: env steps between the compared frames. The motion probe was trained on pairs 10-60 video frames
+            apart; with the dream's k = 4 frames per step the default 3 steps is 12 frames (walking covers
+            ~2.6 blocks, a clear "closer" from the spawn distance of 6-10 blocks).
+        source, judge_dir: see :class:`PartnerTask`.
+    """
+
+    base_name = "approach_partner"
+
+    def __init__(self, source: str = "judge", judge_dir: str | None = None, gap: int = 3):
+        super().__init__(source, judge_dir)
+        if not isinstance(gap, (int, np.integer)) or gap < 1:
+            raise ValueError(f"gap must be an int >= 1, got {gap!r}")
+        self.gap = int(gap)
+
+    def reset(self, frames_PHW3: np.ndarray, truth=None) -> None:
+        super().reset(frames_PHW3, truth)
+        # the last `gap` steps, oldest first: frames (judge) or partner distances (truth), and visibility
+        self._history: list[tuple[Any, np.ndarray]] = [self._observe(frames_PHW3, truth)]
+
+    def step(self, frames_PkHW3: np.ndarray, actions, truth=None) -> TaskStep:
+        p = frames_PkHW3.shape[0]
+        then, visible_then_P = self._history[0]
+        now, visible_now_P = self._observe(frames_PkHW3[:, -1], truth)
+        if self.source == "judge":
+            motion = np.array(self.judge.answer("motion", then, now))
+            closer_P, farther_P = motion == "closer", motion == "farther"
+        else:
+            log_ratio_P = np.log(np.maximum(now, 1e-3) / np.maximum(then, 1e-3))
+            closer_P = log_ratio_P <= -self.labels.motion_log_distance_threshold
+            farther_P = log_ratio_P >= self.labels.motion_log_distance_threshold
+        seen_P = visible_then_P | visible_now_P
+        self._history = (self._history + [(now, visible_now_P)])[-self.gap:]  # next step compares with t+1-gap
+        rewards_P = np.where(seen_P, closer_P.astype(np.float32) - farther_P.astype(np.float32), 0.0)
+        return TaskStep(rewards_P.astype(np.float32), np.zeros(p, bool))
+
+    def _observe(self, frames_PHW3: np.ndarray, truth) -> tuple[Any, np.ndarray]:
+        """What a step keeps: (frames (P, H, W, 3) or distances (P,), partner visible (P,) bool)."""
+        if self.source == "judge":
+            return frames_PHW3.copy(), np.array(self.judge.answer("visible", frames_PHW3)) == "yes"
+        truth = self._truth(truth)
+        pos_P3 = np.stack([np.asarray(t["pos"], np.float64) for t in truth])
+        distance_P = np.linalg.norm(pos_P3 - pos_P3[::-1], axis=-1)  # two players: each one's partner is the other
+        return distance_P, np.array([self._visible_truth(t) for t in truth])
+
+
+# ---------------------------------------------------------------------------------------------
 # Registry
 # ---------------------------------------------------------------------------------------------
 
-TASKS: dict[str, type[Task]] = {t.name: t for t in (NoTask, VisualNoveltyTask, SeeOtherPlayerTask)}
+PARTNER_TASKS: dict[str, type[PartnerTask]] = {t.base_name: t for t in (FacePartnerTask, ApproachPartnerTask)}
+
+TASKS: dict[str, Callable[[], Task]] = {
+    **{t.name: t for t in (NoTask, VisualNoveltyTask, SeeOtherPlayerTask)},
+    **{name: functools.partial(cls, source="judge") for name, cls in PARTNER_TASKS.items()},
+    **{f"{name}_truth": functools.partial(cls, source="truth") for name, cls in PARTNER_TASKS.items()},
+}
 
 
 def make_task(task: Any = None) -> Task:

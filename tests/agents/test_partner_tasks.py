@@ -1,0 +1,120 @@
+"""The partner tasks through the Task API: ground-truth rewards in constructed real-env states, the judge variant
+agreeing with them on engine frames, and the registry / dream-env rules (judge: both envs; truth: real only)."""
+
+import numpy as np
+import pytest
+
+from solaris_env.judges.config import ProbeConfig
+from solaris_env.spaces import noop
+from solaris_env.tasks import (
+    PARTNER_TASKS,
+    ApproachPartnerTask,
+    FacePartnerTask,
+    make_task,
+)
+
+JUDGE_SIZE = ProbeConfig().image_size  # judge-vs-truth checks render at the probes' input size
+
+
+def turn(dyaw_deg: float, **keys) -> dict:
+    a = noop()
+    a["camera"] = np.array([0.0, dyaw_deg], np.float32)
+    a.update(keys)
+    return a
+
+
+def test_face_partner_truth_is_one_when_the_partner_is_centred(real):
+    env = real(task="face_partner_truth")
+    _, infos = env.reset(seed=0)  # a constructed state: the players spawn facing each other
+    for a in env.agents:
+        screen = infos[a]["screen"]
+        (partner,) = screen.values()
+        assert partner["pixels"] >= 2 and abs(partner["u"] - 0.5) < 0.05
+    _, rewards, terminations, _, _ = env.step({a: noop() for a in env.agents})
+    assert rewards == {"Alpha": 1.0, "Bravo": 1.0} and not any(terminations.values())
+    _, rewards, _, _, infos = env.step({"Alpha": turn(35.0), "Bravo": noop()})  # partner pushed to the left third
+    assert rewards == {"Alpha": 0.0, "Bravo": 1.0}
+    assert infos["Alpha"]["screen"]["Bravo"]["u"] < 1 / 3
+    _, rewards, _, _, infos = env.step({"Alpha": turn(150.0), "Bravo": noop()})  # behind
+    assert rewards["Alpha"] == 0.0 and infos["Alpha"]["screen"]["Bravo"] == {"pixels": 0, "u": None}
+
+
+def test_face_partner_judge_agrees_with_the_truth_on_engine_frames(real):
+    env = real(resolution=JUDGE_SIZE, task="face_partner_truth")
+    judge_task = FacePartnerTask(source="judge")
+    agree, total = 0, 0
+    for seed in (1, 2):
+        env.reset(seed=seed)
+        judge_task.reset(env.step_frames()[:, 0])
+        for dyaw in (0.0, 0.0, 45.0, 90.0, -180.0):  # centred, centred, off to the side, gone, back
+            _, rewards, *_ = env.step({"Alpha": turn(dyaw), "Bravo": noop()})
+            by_judge = judge_task.step(env.step_frames(), None).rewards_P
+            agree += int(by_judge[0] == rewards["Alpha"]) + int(by_judge[1] == rewards["Bravo"])
+            total += 2
+    assert agree >= total - 2, f"judge and truth agree on {agree}/{total} rewards"
+
+
+def test_approach_partner_truth_rewards_closing_in_and_punishes_backing_off(real):
+    env = real(task="approach_partner_truth", ticks_per_step=4)
+    env.reset(seed=0)  # facing each other 6-10 blocks apart
+    closer = [env.step({"Alpha": turn(0.0, forward=1), "Bravo": noop()})[1]["Alpha"] for _ in range(5)]
+    assert closer[0] == 0.0 and closer[1:] == [1.0] * 4  # the first step moves < the threshold
+    env.reset(seed=0)
+    farther = [env.step({"Alpha": turn(0.0, back=1), "Bravo": noop()})[1]["Alpha"] for _ in range(5)]
+    assert sum(farther) <= -3
+    env.reset(seed=0)
+    env.step({"Alpha": turn(180.0), "Bravo": noop()})  # turn away: the partner is out of sight
+    unseen = [env.step({"Alpha": turn(0.0, forward=1), "Bravo": noop()})[1]["Alpha"] for _ in range(5)]
+    assert unseen[2:] == [0.0] * 3  # walking away unseen: neither judge nor truth can score it
+
+
+def test_approach_partner_compares_with_the_frame_gap_steps_back():
+    task = ApproachPartnerTask(source="truth", gap=2)
+    def truth(distance):  # Alpha at x = 0, Bravo at x = distance; both see each other
+        seen = {"pixels": 10, "u": 0.5}
+        return [{"pos": np.zeros(3), "screen": {"Bravo": seen}},
+                {"pos": np.array([distance, 0.0, 0.0]), "screen": {"Alpha": seen}}]
+    frames = np.zeros((2, 1, 8, 8, 3), np.uint8)
+    task.reset(frames[:, 0], truth(10.0))
+    # step t compares d_t with d_(t-2) (d_0 early on), threshold |ln ratio| >= 0.15: 9.5 vs 10 (-0.05), 9 vs 10
+    # (-0.11), 8 vs 9.5 (-0.17: closer), 7 vs 9 (-0.25: closer), 7 vs 8 (-0.13)
+    rewards = [task.step(frames, [noop(), noop()], truth(d)).rewards_P.tolist() for d in (9.5, 9.0, 8.0, 7.0, 7.0)]
+    assert rewards == [[0, 0], [0, 0], [1, 1], [1, 1], [0, 0]]
+
+
+def test_registry_names_and_sources():
+    for name, cls in PARTNER_TASKS.items():
+        judge, truth = make_task(name), make_task(f"{name}_truth")
+        assert isinstance(judge, cls) and judge.source == "judge" and not judge.requires_truth and judge.name == name
+        assert isinstance(truth, cls) and truth.source == "truth" and truth.requires_truth
+        assert truth.name == f"{name}_truth"
+    with pytest.raises(ValueError, match="source must be one of"):
+        FacePartnerTask(source="oracle")
+    with pytest.raises(ValueError, match="judge_dir"):
+        FacePartnerTask(source="truth", judge_dir="x")
+    with pytest.raises(ValueError, match="gap"):
+        ApproachPartnerTask(gap=0)
+    with pytest.raises(ValueError, match="source='truth'.*ground truth"):
+        task = FacePartnerTask(source="truth")
+        task.reset(np.zeros((2, 8, 8, 3), np.uint8))
+        task.step(np.zeros((2, 1, 8, 8, 3), np.uint8), [noop(), noop()], truth=None)
+
+
+@pytest.mark.parametrize("players", [1, 3])
+def test_partner_tasks_need_two_players(players):
+    for cls in PARTNER_TASKS.values():
+        with pytest.raises(ValueError, match="num_players=2"):
+            cls(source="truth").reset(np.zeros((players, 8, 8, 3), np.uint8))
+
+
+def test_dream_env_runs_the_judge_tasks_and_refuses_the_truth_ones(model):
+    from solaris_env.dream_env import DreamParallelEnv
+
+    for name in PARTNER_TASKS:
+        env = DreamParallelEnv(model=model, task=name, max_steps=4)
+        env.reset(seed=0)
+        for _ in range(4):
+            _, rewards, *_ = env.step({a: turn(10.0, forward=1) for a in env.agents})
+            assert set(rewards) == {"Alpha", "Bravo"} and all(r in (-1.0, 0.0, 1.0) for r in rewards.values())
+        with pytest.raises(ValueError, match="ground truth"):
+            DreamParallelEnv(model=model, task=f"{name}_truth")

@@ -1,0 +1,53 @@
+"""RealParallelEnv(ticks_per_step=k): one step plays k engine ticks as the dream env does (the whole action on the
+first tick, then only the held movement keys), renders every tick, and scores the task once."""
+
+import numpy as np
+import pytest
+
+from solaris_env.spaces import ONCE_KEYS, noop, tick_actions
+
+
+def act(dyaw: float = 0.0, **keys) -> dict:
+    a = noop()
+    a["camera"] = np.array([0.0, dyaw], np.float32)
+    a.update(keys)
+    return a
+
+
+def test_tick_actions_hold_movement_and_send_once_keys_and_camera_once():
+    ticks = tick_actions(act(12.0, forward=1, jump=1, attack=1, **{"hotbar.2": 1}), 4)
+    assert len(ticks) == 4 and ticks[0]["attack"] == 1 and ticks[0]["camera"][1] == 12.0
+    for t in ticks[1:]:
+        assert t["forward"] == 1 and t["jump"] == 1 and not t["camera"].any()
+        assert all(t[k] == 0 for k in ONCE_KEYS)
+    with pytest.raises(ValueError, match="ticks per step"):
+        tick_actions(noop(), 0)
+
+
+def test_a_step_of_k_ticks_equals_k_single_ticks(real):
+    k = 4
+    script = [{"Alpha": act(7.0, forward=1, sprint=1), "Bravo": act(-5.0, left=1, use=1)},
+              {"Alpha": act(0.0, jump=1, back=1), "Bravo": act(3.0, forward=1)}]
+    multi = real(ticks_per_step=k)
+    single = real()
+    multi.reset(seed=3)
+    single.reset(seed=3)
+    for actions in script:
+        obs_k, *_ , infos_k = multi.step(actions)
+        assert multi.step_frames().shape == (2, k, 36, 36, 3)
+        per_agent = {a: tick_actions(x, k) for a, x in actions.items()}
+        frames = []
+        for t in range(k):
+            obs_1, *_ , infos_1 = single.step({a: ticks[t] for a, ticks in per_agent.items()})
+            frames.append(single.step_frames()[:, 0])
+        assert np.array_equal(multi.step_frames(), np.stack(frames, axis=1))
+        for a in multi.possible_agents:
+            assert np.array_equal(obs_k[a], obs_1[a])
+            assert np.allclose(infos_k[a]["pos"], infos_1[a]["pos"]) and infos_k[a]["yaw"] == infos_1[a]["yaw"]
+    assert multi.game.tick == single.game.tick == k * len(script)
+    assert multi.metadata["render_fps"] == 20 / k and single.metadata["render_fps"] == 20
+
+
+def test_ticks_per_step_must_be_positive(real):
+    with pytest.raises(ValueError, match="ticks_per_step"):
+        real(ticks_per_step=0)
