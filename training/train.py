@@ -204,13 +204,7 @@ def train_vae(out: str | Path, data_dir: str | Path, preset_name: str, stage_cfg
     tx = make_optimizer(sc["lr"])
     graphdef, state = TrainState.create(vae, tx, rng=seed)
     step_fn = V.make_vae_train_step(graphdef, tx, V.VAELossWeights())
-    dataset, sampler = duet_stream(data_dir, cfg, sc["num_frames"], seed)
-    batch_size = local_batch_size(sc["batch_size"])
-
-    def draw():  # B segments x P players -> B*P single-player clips (B*P, T, H, W, 3)
-        obs = D.next_batch(dataset, sampler, batch_size)["obs"]
-        return jnp.asarray(np.swapaxes(obs, 1, 2).reshape((-1,) + obs.shape[1:2] + obs.shape[3:]))
-
+    sampler, draw, batch_size = single_player_clips(data_dir, cfg, sc, seed)
     test_clips = _fixed_clips(data_dir, cfg, sc["num_frames"], sc["eval_clips"], seed)
     reconstruct = V.make_reconstruct(graphdef)
     samples = stage_dir(out, "vae") / "samples"
@@ -256,13 +250,7 @@ def train_vae_decoder(out: str | Path, data_dir: str | Path, stage_cfg: dict, se
     tx = V.make_decoder_optimizer(sc["lr"], params)
     graphdef, state = TrainState.create(vae, tx, rng=seed)
     step_fn = V.make_decoder_train_step(graphdef, tx, V.VAELossWeights())
-    dataset, sampler = duet_stream(data_dir, cfg, sc["num_frames"], seed)
-    batch_size = local_batch_size(sc["batch_size"])
-
-    def draw():  # B segments x P players -> B*P single-player clips (B*P, T, H, W, 3)
-        obs = D.next_batch(dataset, sampler, batch_size)["obs"]
-        return jnp.asarray(np.swapaxes(obs, 1, 2).reshape((-1,) + obs.shape[1:2] + obs.shape[3:]))
-
+    sampler, draw, batch_size = single_player_clips(data_dir, cfg, sc, seed)
     test_clips = _fixed_clips(data_dir, cfg, sc["num_frames"], sc["eval_clips"], seed)
     reconstruct = V.make_reconstruct(graphdef)
 
@@ -286,6 +274,19 @@ def train_vae_decoder(out: str | Path, data_dir: str | Path, stage_cfg: dict, se
     write_json(stage_dir(out, "vae-decoder") / "summary.json",
                {"steps": steps, "num_frames": sc["num_frames"], "before": before, "after": after})
     return model_dir(out, "vae-decoder")
+
+
+def single_player_clips(data_dir: Path, cfg: WorldModelConfig, sc: dict, seed: int):
+    """(sampler, draw, local batch size) of the VAE stages: ``draw()`` gives B segments x P players as
+    B*P single-player clips (B*P, T, H, W, 3) uint8."""
+    dataset, sampler = duet_stream(data_dir, cfg, sc["num_frames"], seed)
+    batch_size = local_batch_size(sc["batch_size"])
+
+    def draw():
+        obs = D.next_batch(dataset, sampler, batch_size)["obs"]
+        return jnp.asarray(np.swapaxes(obs, 1, 2).reshape((-1,) + obs.shape[1:2] + obs.shape[3:]))
+
+    return sampler, draw, batch_size
 
 
 def _fixed_clips(data_dir: Path, cfg: WorldModelConfig, num_frames: int, count: int, seed: int) -> list[np.ndarray]:
