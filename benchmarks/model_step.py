@@ -86,7 +86,7 @@ def count_flops(model, state, actions, x0, state1, x0_1) -> dict:
 
     programs = model.programs
     unrolled = Programs(model.config, programs.graphdefs, unroll=True)
-    params = model.params
+    params = model.step_params
     flops = {
         "denoise": xla_flops(jax.jit(unrolled.denoise), params, state, actions),
         "commit": xla_flops(jax.jit(unrolled.commit), params, state, actions, x0),
@@ -111,7 +111,7 @@ def bench_batch(model, state1, batch: int, rounds: int, seed: int) -> dict:
 
     # parts, each jitted on its own (no donation: the same state is reused)
     denoise, commit, decode = (jax.jit(f) for f in (programs.denoise, programs.commit, programs.decode))
-    params = model.params
+    params = model.step_params
     for _ in range(3):  # compile, then let the thread pools and allocator settle
         x0 = jax.block_until_ready(denoise(params, state, actions))
         jax.block_until_ready(commit(params, state, actions, x0))

@@ -107,10 +107,17 @@ def _run_if(pred: jax.Array, module: nnx.Module, run, skip, *operands, select=No
     """``run(module, *operands)`` if ``pred`` else ``skip(*operands)``; one branch executes. ``select``
     maps the module's state inside the taken branch (e.g. picks one layer of stacked parameters, so the
     skipped branch never reads them)."""
+    if isinstance(pred, (bool, np.bool_)):  # static (a per-layer module list): no lax.cond at all
+        return run(module, *operands) if pred else skip(*operands)
     graphdef, state = nnx.split(module)
     pick = (lambda st: st) if select is None else select
     return jax.lax.cond(pred, lambda st, *ops: run(nnx.merge(graphdef, pick(st)), *ops),
                         lambda st, *ops: skip(*ops), state, *operands)
+
+
+def _static_layer(tree, layer: int):
+    """Layer ``layer`` (a Python int) of a pytree of stacked arrays."""
+    return jax.tree.map(lambda a: a[layer], tree)
 
 
 def _layer_of(layer: jax.Array):
@@ -245,17 +252,27 @@ class SelfAttention(_QKVProjection):
         k, v = stop_gradient_where(k, kv_stop_L), stop_gradient_where(v, kv_stop_L)
         return self._out(attention(q, k, v, mask_LL, self.impl) if attend is None else attend(q, k, v))
 
-    def decode(self, x_BLD: jax.Array, angles_LJ: jax.Array, cache: kv_cache.KVCache):
-        """Append this step's (post-RoPE) keys to the heads-major ``cache`` and attend to all valid slots.
+    def decode(self, x_BLD: jax.Array, angles_LJ: jax.Array, cache: kv_cache.KVCache, num_frames: int = 1,
+               keep: int | None = None):
+        """Attend from ``num_frames`` new frames (tokens packed frame-major) to the heads-major ``cache``
+        and to themselves, block-causally: frame f sees the cache slots still valid after f + 1 frames
+        are appended, and new frames <= f. Returns (y, the cache with the (post-RoPE) keys of the first
+        ``keep`` new frames appended; default all).
 
-        The attention reads the old cache's kept slots and the new keys as two blocks
-        (``attention_heads_major``), so a pass whose updated cache is discarded never builds it."""
+        The attention reads the old cache and the new keys as two blocks (``attention_heads_major``),
+        so a pass whose updated cache is discarded never builds it."""
         q, k, v = self._qkv(x_BLD, angles_LJ)
         k_BNLK, v_BNLK = k.transpose(0, 2, 1, 3), v.transpose(0, 2, 1, 3)
-        kept = kv_cache.kept_mask(cache, k_BNLK.shape[2])[..., None, None, :]  # (S,) or (B, S) -> (.., 1, 1, S)
-        kept = kept if kept.ndim == 3 else kept[:, None]
-        y = attention_heads_major(q, [(cache.k, cache.v, kept), (k_BNLK, v_BNLK, None)])
-        return self._out(y), kv_cache.update(cache, k_BNLK, v_BNLK)
+        per_frame = k_BNLK.shape[2] // num_frames
+        kept = jnp.stack([kv_cache.kept_mask(cache, (f + 1) * per_frame) for f in range(num_frames)], axis=-2)
+        kept = jnp.repeat(kept, per_frame, axis=-2)  # (L, S) or (B, L, S): one row per query token
+        kept = kept[None] if kept.ndim == 2 else kept[:, None]  # broadcast over (B,) N
+        causal = None if num_frames == 1 else masks.expand_to_tokens(np.tril(np.ones((num_frames,) * 2, bool)),
+                                                                     per_frame)
+        y = attention_heads_major(q, [(cache.k, cache.v, kept), (k_BNLK, v_BNLK, causal)])
+        keep = num_frames if keep is None else keep
+        new = slice(0, keep * per_frame)
+        return self._out(y), kv_cache.update(cache, k_BNLK[:, :, new], v_BNLK[:, :, new])
 
 
 class CrossAttention(_QKVProjection):
@@ -347,14 +364,16 @@ class DiTBlock(nnx.Module):
 
     def decode(self, x_BP1LD: jax.Array, cond: _Conditioning, angles_LJ: jax.Array, action_angles_1J: jax.Array,
                layer: jax.Array, cache: kv_cache.DiTCache, cross_kv: tuple[jax.Array, jax.Array],
-               stacked_actions: bool = False):
+               stacked_actions: bool = False, keep: int | None = None):
         """One latent frame against this layer's caches -> (x_BP1LD, updated caches); ``cross_kv`` = this
         layer's context keys/values, heads-major, each (B*P, N, M, K). ``stacked_actions``: this block's
         ``action_model`` holds every layer's parameters (leading layer axis) and the branch that runs it
         picks layer ``layer`` (so layers without an action module never copy those weights)."""
         mods = self._modulation(cond.e0_BPF6D)
         x_BP1LD = x_BP1LD + cond.player_PD[None, :, None, None].astype(x_BP1LD.dtype)
-        y, self_cache = self.self_attn.decode(self._attn_input(x_BP1LD, mods), angles_LJ, cache.self_attn)
+        num_frames = x_BP1LD.shape[2]  # > 1: block-causal new frames, the first ``keep`` written (commit + denoise)
+        y, self_cache = self.self_attn.decode(self._attn_input(x_BP1LD, mods), angles_LJ, cache.self_attn,
+                                              num_frames, keep)
         x_BP1LD = self._cross_and_actions_input(x_BP1LD, y, mods,
                                                 lambda h: self.cross_attn.attend_heads_major(h, *cross_kv))
         b, p, f, s, d = x_BP1LD.shape
@@ -362,7 +381,7 @@ class DiTBlock(nnx.Module):
         def run_actions(module, x, mouse_cache, keyboard_cache):
             x, mouse_cache, keyboard_cache = module.decode(
                 x.reshape(b * p, f, s, d), _fold(cond.mouse_BPFWA), _fold(cond.keyboard_BPFWA),
-                action_angles_1J, mouse_cache, keyboard_cache)
+                action_angles_1J, mouse_cache, keyboard_cache, keep)
             return x.reshape(b, p, f, s, d), mouse_cache, keyboard_cache
 
         x_BP1LD, mouse_cache, keyboard_cache = _run_if(
@@ -508,9 +527,10 @@ class WorldDiT(nnx.Module):
         return self._decode_layers(tokens, e, cond_in, cache, start_frame, project, None, keep_cache=True,
                                    unroll=False)
 
-    def context_kv(self, context) -> ContextKV:
+    def context_kv(self, context, layers: "tuple[DiTBlock, ...] | None" = None) -> ContextKV:
         """The cross-attention keys/values of every layer for ``context`` (B, P, M, context_width): what
-        ``decode_step`` computes in every pass, computed once (``img_emb`` then each layer's k/v)."""
+        ``decode_step`` computes in every pass, computed once (``img_emb`` then each layer's k/v).
+        ``layers``: the blocks as one module per layer (``unstack_blocks``) instead of ``self.blocks``."""
         c = self.cfg
         if context.ndim != 4 or context.shape[1] != c.stream_players or context.shape[3] != c.context_width:
             raise ValueError(f"context has shape {context.shape}; expected (B, {c.stream_players}, M, "
@@ -523,26 +543,39 @@ class WorldDiT(nnx.Module):
             k, v = block.cross_attn.kv(projected)  # (B*P, M, N, K)
             return carry, (heads_major(k), heads_major(v))
 
+        if layers is not None:
+            k, v = zip(*(step(block, None, None)[1] for block in layers))
+            return ContextKV(jnp.stack(k), jnp.stack(v))
         _, (k, v) = _scan_layers(self.blocks, step, None, jnp.arange(c.dit.num_layers))
         return ContextKV(k, v)
 
     def decode_step_cached(self, x, t, cond, context_kv: ContextKV, mouse, keyboard, cache: kv_cache.DiTCache,
-                           start_frame: int | jax.Array, *, unroll: bool = False):
+                           start_frame: int | jax.Array, *, unroll: bool = False,
+                           layers: "tuple[DiTBlock, ...] | None" = None):
         """``decode_step`` with the context given as its precomputed per-layer keys/values
         (``context_kv(context)``): the same result up to float rounding, without re-projecting the
         context in every pass. Returns ``(v, new_cache)`` (a commit pass keeps the cache). ``unroll``
-        traces the layers as straight-line code (same result; for XLA's cost analysis)."""
+        traces the layers as straight-line code (same result; for XLA's cost analysis).
+
+        ``layers``: the blocks as one module per layer (``unstack_blocks``; ``self.blocks`` is then not
+        read). The layer loop is then Python-level with static layer indices: every layer's weights are
+        their own buffers (a scan over the stacked weights copies each layer's slice, ~its whole size,
+        in every pass) and the action module runs in the first ``num_action_blocks`` layers without a
+        ``lax.cond``. Same result up to float rounding; what the streaming ``WorldModel`` uses."""
         cond_in, tokens, e = self._prepare_cached(x, t, cond, context_kv, mouse, keyboard)
         return self._decode_layers(tokens, e, cond_in, cache, start_frame, self._fold_kv,
-                                   (context_kv.k_LBPNMK, context_kv.v_LBPNMK), keep_cache=True, unroll=unroll)
+                                   (context_kv.k_LBPNMK, context_kv.v_LBPNMK), keep_cache=True, unroll=unroll,
+                                   layers=layers)
 
     def denoise_step_cached(self, x, t, cond, context_kv: ContextKV, mouse, keyboard, cache: kv_cache.DiTCache,
-                            start_frame: int | jax.Array, *, unroll: bool = False) -> jax.Array:
+                            start_frame: int | jax.Array, *, unroll: bool = False,
+                            layers: "tuple[DiTBlock, ...] | None" = None) -> jax.Array:
         """The velocity of ``decode_step_cached`` alone (a denoising pass: the cache update is discarded,
         so it is never built)."""
         cond_in, tokens, e = self._prepare_cached(x, t, cond, context_kv, mouse, keyboard)
         return self._decode_layers(tokens, e, cond_in, cache, start_frame, self._fold_kv,
-                                   (context_kv.k_LBPNMK, context_kv.v_LBPNMK), keep_cache=False, unroll=unroll)[0]
+                                   (context_kv.k_LBPNMK, context_kv.v_LBPNMK), keep_cache=False, unroll=unroll,
+                                   layers=layers)[0]
 
     # -- internals -----------------------------------------------------------------------------------
     @staticmethod
@@ -563,7 +596,7 @@ class WorldDiT(nnx.Module):
         return self._prepare(x, t, cond, None, mouse[:, :, None], keyboard[:, :, None])
 
     def _decode_layers(self, tokens, e, cond_in: _Conditioning, cache: kv_cache.DiTCache, start_frame,
-                       cross_kv_of, per_layer_kv, keep_cache: bool, unroll: bool):
+                       cross_kv_of, per_layer_kv, keep_cache: bool, unroll: bool, layers=None):
         """The layer scan of a decode step; ``cross_kv_of(block, per_layer_kv[layer])`` gives the layer's
         heads-major cross-attention (k, v), each (B*P, N, M, K). Without ``keep_cache`` the updated
         caches are not outputs of the scan (so XLA never builds them) and None is returned for them."""
@@ -571,6 +604,16 @@ class WorldDiT(nnx.Module):
         gh, gw = self._grid()
         angles = rope.rope_3d_angles(d.rope_split, d.rope_theta, 1, gh, gw, tokens.shape[1], start_frame)
         action_angles = rope.temporal_rope_angles(c.action.rope_dims, c.action.rope_theta, 1, start_frame)
+        if layers is not None:  # one module per layer, static indices (see decode_step_cached)
+            if len(layers) != d.num_layers:
+                raise ValueError(f"layers has {len(layers)} blocks; the config has num_layers={d.num_layers}")
+            new_caches = []
+            for i, block in enumerate(layers):
+                tokens, new_cache = block.decode(tokens, cond_in, angles, action_angles, i, _static_layer(cache, i),
+                                                 cross_kv_of(block, _static_layer(per_layer_kv, i)))
+                new_caches.append(new_cache)
+            stacked = jax.tree.map(lambda *a: jnp.stack(a), *new_caches) if keep_cache else None
+            return self._unpatchify(self.head(tokens, e)), stacked
 
         # Per-layer caches and context K/V are read with a dynamic index (and the caches written back
         # in place) instead of being scanned as xs/ys: under a vmap over worlds, scanned xs/ys would be
@@ -681,6 +724,22 @@ def _stacked_blocks(cfg: WorldModelConfig, rngs: nnx.Rngs) -> DiTBlock:
         return DiTBlock(cfg, rngs=r)
 
     return create(rngs)
+
+
+def block_graphdef(cfg: WorldModelConfig):
+    """The graphdef of ONE DiTBlock of ``cfg`` (no parameters are created)."""
+    return nnx.split(nnx.eval_shape(lambda: DiTBlock(cfg, rngs=nnx.Rngs(0))))[0]
+
+
+def unstack_blocks(cfg: WorldModelConfig, blocks_state) -> tuple:
+    """The stacked blocks' state (leaves (num_layers, ...), ``nnx.state(dit.blocks)``) as one state per
+    layer, each its own buffers; ``nnx.merge(block_graphdef(cfg), states[i])`` is layer i."""
+    return tuple(jax.tree.map(lambda a: a[i], blocks_state) for i in range(cfg.dit.num_layers))
+
+
+def stack_blocks(layer_states: tuple):
+    """Inverse of ``unstack_blocks``."""
+    return jax.tree.map(lambda *a: jnp.stack(a), *layer_states)
 
 
 def count_params(model: nnx.Module) -> int:

@@ -65,7 +65,7 @@ from __future__ import annotations
 
 import functools
 import math
-from typing import Any
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -75,7 +75,8 @@ from flax import nnx, struct
 from solaris_env.world_model import kv_cache, sampler
 from solaris_env.world_model.conditioning import first_frame_cond_next, first_frame_cond_start
 from solaris_env.world_model.config import VAEConfig, WorldModelConfig, preset
-from solaris_env.world_model.dit import ContextKV, WorldDiT, from_stream, timesteps_to_stream, to_stream
+from solaris_env.world_model.dit import (ContextKV, WorldDiT, block_graphdef, from_stream, stack_blocks,
+                                         timesteps_to_stream, to_stream, unstack_blocks)
 from solaris_env.world_model.image_encoder import ImageEncoder
 from solaris_env.world_model.vae import CausalVideoVAE
 
@@ -170,8 +171,23 @@ class WorldState:
 # ---------------------------------------------------------------------------------------------
 
 
+class StepParams(NamedTuple):
+    """The parameters as the streaming programs take them (``Programs.step_params``).
+
+    The DiT's blocks are one state per layer (``dit.unstack_blocks``) rather than stacked on a layer
+    axis: a layer loop over stacked weights copies each layer's slice in every pass (for the tiny preset
+    ~a third of a denoising pass at B=1), a Python loop over per-layer buffers reads them in place.
+    """
+
+    dit: Any  # the DiT's state without its blocks
+    dit_layers: tuple  # one DiTBlock state per layer
+    vae: Any
+    image_encoder: Any
+
+
 class Programs:
-    """Pure functions of ``(params, ...)`` for one config; ``params`` = (dit, vae, image_encoder) states.
+    """Pure functions of ``(params, ...)`` for one config; ``params`` is a ``StepParams``
+    (``step_params`` converts the (dit, vae, image_encoder) states that ``WorldModel.params`` returns).
 
     ``init``, ``step``, ``reset_one`` are what ``WorldModel`` jits; ``denoise``, ``commit``, ``decode``
     are the three parts of ``step`` (the benchmark times them separately).
@@ -180,14 +196,34 @@ class Programs:
     def __init__(self, cfg: WorldModelConfig, graphdefs: tuple, *, unroll: bool = False):
         self.cfg = cfg
         self.graphdefs = graphdefs
-        self.unroll = unroll  # straight-line sampler steps and DiT layers (for XLA's cost analysis only)
+        self.unroll = unroll  # straight-line sampler steps (for XLA's cost analysis only)
         self.timesteps = sampler.ar_schedule(cfg.sampler)
         self.cond_frames = steady_cond_index(cfg.vae) + 1
+        # the DiT split into (blocks, rest); the programs merge it with shape-only blocks (never read)
+        self._dit_graphdef, blocks, _ = nnx.split(abstract_modules(cfg)[0], nnx.PathContains("blocks"), ...)
+        self._blocks_shapes = blocks
+        self._block_graphdef = block_graphdef(cfg)
+
+    # -- parameter layouts ------------------------------------------------------------------------------
+    def step_params(self, params) -> StepParams:
+        """(dit, vae, image_encoder) states (the checkpoint layout) -> ``StepParams`` (new buffers for the
+        layers; the caller may drop the stacked ones)."""
+        _, blocks, rest = nnx.split(nnx.merge(self.graphdefs[0], params[0]), nnx.PathContains("blocks"), ...)
+        return StepParams(rest, unstack_blocks(self.cfg, blocks["blocks"]), params[1], params[2])
+
+    def stacked_params(self, step: StepParams) -> tuple:
+        """Inverse of ``step_params``: the (dit, vae, image_encoder) states."""
+        blocks = nnx.State({"blocks": stack_blocks(step.dit_layers)})
+        return nnx.state(nnx.merge(self._dit_graphdef, blocks, step.dit)), step.vae, step.image_encoder
 
     # -- per world: the state's fields lose their leading B axis (``ws.actions_BPWA`` is (P, W, A)
     #    here); the DiT sees batch 1, the VAE and the image encoder batch P ------------------------------
-    def _modules(self, params):
-        return tuple(nnx.merge(g, p) for g, p in zip(self.graphdefs, params))
+    def _modules(self, params: StepParams):
+        """(dit, layers, vae, image_encoder): ``dit.blocks`` holds shapes only; ``layers`` are the blocks."""
+        dit = nnx.merge(self._dit_graphdef, self._blocks_shapes, params.dit)
+        layers = tuple(nnx.merge(self._block_graphdef, s) for s in params.dit_layers)
+        return (dit, layers, nnx.merge(self.graphdefs[1], params.vae),
+                nnx.merge(self.graphdefs[2], params.image_encoder))
 
     def _dit_args(self, z_P1hwC, t, ws_parts, start):
         """``WorldDiT.*_step_cached`` arguments for one world (DiT batch 1). ``ws_parts`` carries the
@@ -200,9 +236,10 @@ class Programs:
         return (to_stream(cfg, z_P1hwC[None]), t_1P1, to_stream(cfg, cond[None]), context_kv,
                 to_stream(cfg, window[None, :, :, kb:]), to_stream(cfg, window[None, :, :, :kb]), cache, start)
 
-    def _velocity(self, dit: WorldDiT, z_P1hwC, t, ws_parts, start):
-        """v of one latent frame (a denoising pass: the cache is read, not updated): v_P1hwC."""
-        v = dit.denoise_step_cached(*self._dit_args(z_P1hwC, t, ws_parts, start), unroll=self.unroll)
+    def _velocity(self, dit, z_P1hwC, t, ws_parts, start):
+        """v of one latent frame (a denoising pass: the cache is read, not updated): v_P1hwC.
+        ``dit`` = (the DiT, its blocks one module per layer)."""
+        v = dit[0].denoise_step_cached(*self._dit_args(z_P1hwC, t, ws_parts, start), layers=dit[1])
         return from_stream(self.cfg, v)[0]
 
     def _window(self, ws: WorldState, actions_PkA):
@@ -228,19 +265,19 @@ class Programs:
 
     def _commit(self, dit, parts, x0_P1hwC, start):
         """Commit pass at t = 0 on the clean latent: writes this frame's keys/values into the caches."""
-        return dit.decode_step_cached(*self._dit_args(x0_P1hwC, 0.0, parts, start), unroll=self.unroll)[1]
+        return dit[0].decode_step_cached(*self._dit_args(x0_P1hwC, 0.0, parts, start), layers=dit[1])[1]
 
     def _denoise_world(self, params, ws: WorldState, actions_PkA):
-        dit = self._modules(params)[0]
+        dit = self._modules(params)[:2]
         _, frame_key = jax.random.split(ws.key_B)
         return self._sample(dit, self._frame_inputs(ws, actions_PkA), frame_key, ws.frame_index_B)
 
     def _commit_world(self, params, ws: WorldState, actions_PkA, x0_P1hwC):
-        dit = self._modules(params)[0]
+        dit = self._modules(params)[:2]
         return self._commit(dit, self._frame_inputs(ws, actions_PkA), x0_P1hwC, ws.frame_index_B)
 
     def _decode_world(self, params, ws: WorldState, x0_P1hwC):
-        vae = self._modules(params)[1]
+        vae = self._modules(params)[2]
         video, vae_cache = vae.decode_step(x0_P1hwC, ws.vae_cache)  # (P, k, H, W, 3) in [-1, 1]
         return frames_to_uint8(video), vae_cache
 
@@ -265,10 +302,11 @@ class Programs:
     def _init_world(self, params, first_PHW3_uint8, first_actions_PA, key):
         """One world: encode the first frames, then generate, commit and decode latent frame 0."""
         cfg = self.cfg
-        dit, vae, encoder = self._modules(params)
+        dit, layers, vae, encoder = self._modules(params)
         first = frames_to_model(first_PHW3_uint8)
         context = encoder(first)  # (P, M, Ce)
-        context_kv = dit.context_kv(to_stream(cfg, context[None]))  # leaves (layers, 1, P, N, M, K)
+        context_kv = dit.context_kv(to_stream(cfg, context[None]), layers)  # leaves (layers, 1, P, N, M, K)
+        dit = (dit, layers)
         cond = self._cond_table(vae, first)
         actions = jnp.repeat(first_actions_PA.astype(jnp.float32)[:, None], cfg.action_window, axis=1)
         cache = kv_cache.init_cache(cfg, 1)  # batch 1: the DiT sees one world at a time
@@ -328,8 +366,8 @@ class WorldModel:
     def __init__(self, config: WorldModelConfig, dit: WorldDiT, vae: CausalVideoVAE, image_encoder: ImageEncoder):
         self._cfg = config
         graphdefs, params = zip(*(nnx.split(m) for m in (dit, vae, image_encoder)))
-        self._params = tuple(params)
         self.programs = Programs(config, tuple(graphdefs))
+        self._step_params = self.programs.step_params(tuple(params))  # the only copy kept
         # jit once; the state is donated (callers must use the returned state, not the old one)
         self._init_fn = jax.jit(self.programs.init)
         self._step_fn = jax.jit(self.programs.step, donate_argnums=(1,))
@@ -359,7 +397,7 @@ class WorldModel:
     def save(self, path) -> None:
         """Write our checkpoint format (safetensors + JSON config, atomically)."""
         from solaris_env.world_model import checkpoint
-        checkpoint.save(path, self._cfg, dict(zip(COMPONENTS, self._params)))
+        checkpoint.save(path, self._cfg, dict(zip(COMPONENTS, self.params)))
 
     # -- properties -----------------------------------------------------------------------------------
     @property
@@ -368,12 +406,19 @@ class WorldModel:
 
     @property
     def params(self) -> tuple:
-        """(dit, vae, image_encoder) parameter states, as passed to ``programs``."""
-        return self._params
+        """(dit, vae, image_encoder) parameter states, the DiT's blocks stacked on a layer axis (the
+        checkpoint and training layout; built from ``step_params`` on each call)."""
+        return self.programs.stacked_params(self._step_params)
+
+    @property
+    def step_params(self) -> StepParams:
+        """The parameters as ``programs`` take them."""
+        return self._step_params
 
     def modules(self) -> tuple:
-        """Fresh (dit, vae, image_encoder) modules sharing this model's parameters."""
-        return self.programs._modules(self._params)
+        """Fresh (dit, vae, image_encoder) modules with this model's parameters."""
+        graphdefs = self.programs.graphdefs
+        return tuple(nnx.merge(g, p) for g, p in zip(graphdefs, self.params))
 
     @property
     def frame_shape(self) -> tuple[int, int, int]:
@@ -410,7 +455,7 @@ class WorldModel:
         first_frames = self._check_frames(first_frames, "first_frames")
         b = first_frames.shape[0]
         first_actions = self._check_first_actions(first_actions, b)
-        return self._init_fn(self._params, first_frames, first_actions, _raw_key(rng))
+        return self._init_fn(self._step_params, first_frames, first_actions, _raw_key(rng))
 
     def step(self, state: WorldState, actions) -> tuple[jax.Array, WorldState]:
         """Generate one latent frame per world: ``actions`` (B, P, k, 25) -> (frames (B, P, k, H, W, 3)
@@ -418,7 +463,7 @@ class WorldModel:
         self._check_state(state)
         actions = self._check_actions(actions, state.num_worlds, (self.frames_per_step,), "actions",
                                       "(B, P, k, 25)")
-        return self._step_fn(self._params, state, actions)
+        return self._step_fn(self._step_params, state, actions)
 
     def reset_worlds(self, state: WorldState, mask_B, first_frames, rng=None, first_actions=None) -> WorldState:
         """Restart the worlds where ``mask_B`` is True from ``first_frames[b]`` (other rows ignored).
@@ -438,7 +483,7 @@ class WorldModel:
         # host copy: the state's buffers are donated by the first reset below
         keys = np.asarray(state.key_B if rng is None else jax.random.split(_raw_key(rng), b))
         for index in np.flatnonzero(mask):
-            state = self._reset_fn(self._params, state, jnp.int32(index), first_frames[index],
+            state = self._reset_fn(self._step_params, state, jnp.int32(index), first_frames[index],
                                    first_actions[index], keys[index])
         return state
 
@@ -512,5 +557,5 @@ def param_count(model: WorldModel) -> dict[str, int]:
     return {name: sum(math.prod(v.shape) for v in jax.tree.leaves(p)) for name, p in zip(COMPONENTS, model.params)}
 
 
-__all__ = ["WorldModel", "WorldState", "Programs", "abstract_modules", "encoder_receptive_field",
+__all__ = ["WorldModel", "WorldState", "Programs", "StepParams", "abstract_modules", "encoder_receptive_field",
            "steady_cond_index", "frames_to_model", "frames_to_uint8", "param_count", "COMPONENTS"]

@@ -154,17 +154,17 @@ def test_memory_flat_and_step_compiles_once(model):
 
 
 def test_unrolled_programs_compute_the_same_step(model):
-    """Programs(unroll=True) (straight-line sampler steps and DiT layers, used to count FLOPs with XLA's
-    cost analysis) computes the same step as the looped programs, and XLA counts more FLOPs in it."""
+    """Programs(unroll=True) (straight-line sampler steps, used to count FLOPs with XLA's cost analysis)
+    computes the same step as the looped programs, and XLA counts more FLOPs in it."""
     state = model.init(first_frames(model), 0)
     actions = jnp.asarray(random_actions(model, B, 1, seed=4)[0])
     looped = model.programs
     unrolled = Programs(model.config, looped.graphdefs, unroll=True)
-    frames, new = jax.jit(looped.step)(model.params, state, actions)
-    frames_u, new_u = jax.jit(unrolled.step)(model.params, state, actions)
+    frames, new = jax.jit(looped.step)(model.step_params, state, actions)
+    frames_u, new_u = jax.jit(unrolled.step)(model.step_params, state, actions)
     np.testing.assert_allclose(np.asarray(new_u.latent_BP1hwC), np.asarray(new.latent_BP1hwC), atol=1e-5)
     assert np.abs(np.asarray(frames_u, int) - np.asarray(frames, int)).max() <= 1
-    cost = lambda p: jax.jit(p.denoise).lower(model.params, state, actions).compile().cost_analysis()["flops"]
+    cost = lambda p: jax.jit(p.denoise).lower(model.step_params, state, actions).compile().cost_analysis()["flops"]
     assert cost(unrolled) > 2 * cost(looped)
 
 
