@@ -252,27 +252,17 @@ class SelfAttention(_QKVProjection):
         k, v = stop_gradient_where(k, kv_stop_L), stop_gradient_where(v, kv_stop_L)
         return self._out(attention(q, k, v, mask_LL, self.impl) if attend is None else attend(q, k, v))
 
-    def decode(self, x_BLD: jax.Array, angles_LJ: jax.Array, cache: kv_cache.KVCache, num_frames: int = 1,
-               keep: int | None = None):
-        """Attend from ``num_frames`` new frames (tokens packed frame-major) to the heads-major ``cache``
-        and to themselves, block-causally: frame f sees the cache slots still valid after f + 1 frames
-        are appended, and new frames <= f. Returns (y, the cache with the (post-RoPE) keys of the first
-        ``keep`` new frames appended; default all).
+    def decode(self, x_BLD: jax.Array, angles_LJ: jax.Array, cache: kv_cache.KVCache):
+        """Append this step's (post-RoPE) keys to the heads-major ``cache`` and attend to all valid slots.
 
-        The attention reads the old cache and the new keys as two blocks (``attention_heads_major``),
-        so a pass whose updated cache is discarded never builds it."""
+        The attention reads the old cache's kept slots and the new keys as two blocks
+        (``attention_heads_major``), so a pass whose updated cache is discarded never builds it."""
         q, k, v = self._qkv(x_BLD, angles_LJ)
         k_BNLK, v_BNLK = k.transpose(0, 2, 1, 3), v.transpose(0, 2, 1, 3)
-        per_frame = k_BNLK.shape[2] // num_frames
-        kept = jnp.stack([kv_cache.kept_mask(cache, (f + 1) * per_frame) for f in range(num_frames)], axis=-2)
-        kept = jnp.repeat(kept, per_frame, axis=-2)  # (L, S) or (B, L, S): one row per query token
-        kept = kept[None] if kept.ndim == 2 else kept[:, None]  # broadcast over (B,) N
-        causal = None if num_frames == 1 else masks.expand_to_tokens(np.tril(np.ones((num_frames,) * 2, bool)),
-                                                                     per_frame)
-        y = attention_heads_major(q, [(cache.k, cache.v, kept), (k_BNLK, v_BNLK, causal)])
-        keep = num_frames if keep is None else keep
-        new = slice(0, keep * per_frame)
-        return self._out(y), kv_cache.update(cache, k_BNLK[:, :, new], v_BNLK[:, :, new])
+        kept = kv_cache.kept_mask(cache, k_BNLK.shape[2])[..., None, None, :]  # (S,) or (B, S) -> (.., 1, 1, S)
+        kept = kept if kept.ndim == 3 else kept[:, None]
+        y = attention_heads_major(q, [(cache.k, cache.v, kept), (k_BNLK, v_BNLK, None)])
+        return self._out(y), kv_cache.update(cache, k_BNLK, v_BNLK)
 
 
 class CrossAttention(_QKVProjection):
@@ -364,16 +354,14 @@ class DiTBlock(nnx.Module):
 
     def decode(self, x_BP1LD: jax.Array, cond: _Conditioning, angles_LJ: jax.Array, action_angles_1J: jax.Array,
                layer: jax.Array, cache: kv_cache.DiTCache, cross_kv: tuple[jax.Array, jax.Array],
-               stacked_actions: bool = False, keep: int | None = None):
+               stacked_actions: bool = False):
         """One latent frame against this layer's caches -> (x_BP1LD, updated caches); ``cross_kv`` = this
         layer's context keys/values, heads-major, each (B*P, N, M, K). ``stacked_actions``: this block's
         ``action_model`` holds every layer's parameters (leading layer axis) and the branch that runs it
         picks layer ``layer`` (so layers without an action module never copy those weights)."""
         mods = self._modulation(cond.e0_BPF6D)
         x_BP1LD = x_BP1LD + cond.player_PD[None, :, None, None].astype(x_BP1LD.dtype)
-        num_frames = x_BP1LD.shape[2]  # > 1: block-causal new frames, the first ``keep`` written (commit + denoise)
-        y, self_cache = self.self_attn.decode(self._attn_input(x_BP1LD, mods), angles_LJ, cache.self_attn,
-                                              num_frames, keep)
+        y, self_cache = self.self_attn.decode(self._attn_input(x_BP1LD, mods), angles_LJ, cache.self_attn)
         x_BP1LD = self._cross_and_actions_input(x_BP1LD, y, mods,
                                                 lambda h: self.cross_attn.attend_heads_major(h, *cross_kv))
         b, p, f, s, d = x_BP1LD.shape
@@ -381,7 +369,7 @@ class DiTBlock(nnx.Module):
         def run_actions(module, x, mouse_cache, keyboard_cache):
             x, mouse_cache, keyboard_cache = module.decode(
                 x.reshape(b * p, f, s, d), _fold(cond.mouse_BPFWA), _fold(cond.keyboard_BPFWA),
-                action_angles_1J, mouse_cache, keyboard_cache, keep)
+                action_angles_1J, mouse_cache, keyboard_cache)
             return x.reshape(b, p, f, s, d), mouse_cache, keyboard_cache
 
         x_BP1LD, mouse_cache, keyboard_cache = _run_if(

@@ -346,3 +346,15 @@ def test_conditioning_table_matches_full_video_encoding_and_is_steady(model, rol
     for i in range(steady + 1, full.shape[2]):  # every later latent frame has the steady conditioning
         np.testing.assert_allclose(full[:, :, i], table[:, :, steady], atol=1e-5)
     assert encoder_receptive_field(model.config.vae) == 80  # test preset: 2+4+4+2+8+4+16+32+8
+
+
+def test_step_params_round_trip_to_the_stacked_layout(model):
+    """StepParams (one DiT block state per layer, what the programs take) and the stacked checkpoint
+    layout convert into each other exactly."""
+    stacked = model.params
+    back = model.programs.stacked_params(model.programs.step_params(stacked))
+    for a, b in zip(stacked, back):
+        assert jax.tree.structure(a) == jax.tree.structure(b)
+        for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b)):
+            np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+    assert len(model.step_params.dit_layers) == model.config.dit.num_layers
