@@ -2,7 +2,6 @@
 
 import pytest
 
-from solaris_env.engine import cli
 from solaris_env.judges.episodes import find_episodes
 
 # One eval type per judge question (bothLookAway asks the same question as oneLooksAway); turnToLook
@@ -13,13 +12,9 @@ SIZE = 64  # the default model's resolution, the probes' input
 
 
 @pytest.fixture(scope="session")
-def collected(tmp_path_factory):
+def collected(collect_eval):
     """Root of a ``solaris-engine collect --eval`` output with one episode per FIXTURE_TYPES."""
-    root = tmp_path_factory.mktemp("judge_episodes")
-    rc = cli.main(["collect", "--out", str(root), "--eval", "--eval-types", *FIXTURE_TYPES, "--episodes", "1",
-                   "--resolution", str(SIZE), "--seed", "0"])
-    assert rc == 0
-    return root
+    return collect_eval(FIXTURE_TYPES, SIZE, seed=0)
 
 
 @pytest.fixture(scope="session")
