@@ -1,4 +1,4 @@
-"""World-model streaming step: seconds per env step (denoise / commit / VAE decode), frames/s, FLOPs.
+"""World-model streaming step: seconds per env step (denoise incl. the fused commit / VAE decode), frames/s, FLOPs.
 
     .venv/bin/python -m benchmarks.model_step --preset tiny            # ~5-10 min on 2 shared CPU cores
     .venv/bin/python -m benchmarks.model_step --preset test --quick    # smoke run
@@ -9,10 +9,13 @@ Writes ``benchmarks/results/model_step.json`` with, for every batch size B (worl
   latent frame = k video frames per player, both players), median over the timed rounds, frames ready
   (``block_until_ready``). ``env_steps_per_s`` = 1 / step_s (one env step advances all B worlds) and
   ``player_frames_per_s`` = B * P * k / step_s.
-* ``parts_s``: the three parts of a step jitted and timed on their own, in the same rounds as the step
-  (each round times one step then each part once, so all see the same background load): ``denoise`` (the
-  few-step sampler: len(ar_timesteps) DiT passes), ``commit`` (the t = 0 pass that writes the KV cache),
-  ``decode`` (the streaming VAE decode of the new latent frame).
+* ``parts_s``: the parts of a step jitted and timed on their own, in the same rounds as the step (each
+  round times one step then each part once, so all see the same background load): ``denoise`` (every
+  DiT pass: the few-step sampler's len(ar_timesteps) passes, the first of them fused with the commit of
+  the previous latent frame -- ``WorldDiT.commit_denoise_step_cached``: one pass of two frames, the
+  clean one at t = 0 written to the KV cache), ``decode`` (the streaming VAE decode of the new latent
+  frame), and ``first_pass`` (the fused commit + first denoising pass alone; included in ``denoise``).
+  The commit has no time of its own: it is the first of the two frames of that pass.
 * ``flops``: XLA's cost analysis (``jitted.lower(...).compile().cost_analysis()["flops"]``) of the
   compiled parts. XLA counts a loop body once, so the DiT parts are compiled for counting with their
   loops traced as straight-line code (``Programs(..., unroll=True)``: the same computation, every
@@ -78,8 +81,8 @@ def matmul_peak_gflops(size: int = 2048, repeats: int = 5) -> float:
     return 2 * size ** 3 / best / 1e9
 
 
-def count_flops(model, state, actions, x0, state1, x0_1) -> dict:
-    """XLA cost-analysis FLOPs of denoise / commit (loops unrolled) and decode (B x one world)."""
+def count_flops(model, state, actions, state1, x0_1) -> dict:
+    """XLA cost-analysis FLOPs of denoise (loops unrolled; the fused first pass alone too) and decode (B x one world)."""
     import jax
 
     from solaris_env.world_model.world_model import Programs
@@ -89,10 +92,10 @@ def count_flops(model, state, actions, x0, state1, x0_1) -> dict:
     params = model.step_params
     flops = {
         "denoise": xla_flops(jax.jit(unrolled.denoise), params, state, actions),
-        "commit": xla_flops(jax.jit(unrolled.commit), params, state, actions, x0),
         "decode": state.num_worlds * xla_flops(jax.jit(programs.decode), params, state1, x0_1),
     }
     flops["step"] = sum(flops.values())
+    flops["first_pass"] = xla_flops(jax.jit(programs.first_pass), params, state, actions)  # part of denoise
     return flops
 
 
@@ -110,14 +113,14 @@ def bench_batch(model, state1, batch: int, rounds: int, seed: int) -> dict:
     actions = jnp.asarray(actions)
 
     # parts, each jitted on its own (no donation: the same state is reused)
-    denoise, commit, decode = (jax.jit(f) for f in (programs.denoise, programs.commit, programs.decode))
+    denoise, first_pass, decode = (jax.jit(f) for f in (programs.denoise, programs.first_pass, programs.decode))
     params = model.step_params
     for _ in range(3):  # compile, then let the thread pools and allocator settle
-        x0 = jax.block_until_ready(denoise(params, state, actions))
-        jax.block_until_ready(commit(params, state, actions, x0))
+        x0 = jax.block_until_ready(denoise(params, state, actions))[0]
+        jax.block_until_ready(first_pass(params, state, actions))
         jax.block_until_ready(decode(params, state, x0))
     one = lambda a: a[:1]
-    flops = count_flops(model, state, actions, x0, jax.tree.map(one, state), x0[:1])
+    flops = count_flops(model, state, actions, jax.tree.map(one, state), x0[:1])
     looped = xla_flops(jax.jit(programs.step), params, state, actions)
 
     # the real thing: WorldModel.step (donated state, so it runs on its own copy), compiled by the first call
@@ -142,12 +145,12 @@ def bench_batch(model, state1, batch: int, rounds: int, seed: int) -> dict:
         out, stream = model.step(stream, actions)
         out.block_until_ready()
 
-    times, part_times = [], {"denoise": [], "commit": [], "decode": []}
+    times, part_times = [], {"denoise": [], "decode": [], "first_pass": []}
     for _ in range(rounds):
         times.append(timed(env_step))
         part_times["denoise"].append(timed(lambda: jax.block_until_ready(denoise(params, state, actions))))
-        part_times["commit"].append(timed(lambda: jax.block_until_ready(commit(params, state, actions, x0))))
         part_times["decode"].append(timed(lambda: jax.block_until_ready(decode(params, state, x0))))
+        part_times["first_pass"].append(timed(lambda: jax.block_until_ready(first_pass(params, state, actions))))
     parts = {name: statistics.median(ts) for name, ts in part_times.items()}
     step_s = statistics.median(times)
     return {
@@ -156,7 +159,7 @@ def bench_batch(model, state1, batch: int, rounds: int, seed: int) -> dict:
         "step_s_min": min(times),
         "first_call_s": first_call_s,
         "parts_s": parts,
-        "parts_sum_s": sum(parts.values()),
+        "parts_sum_s": parts["denoise"] + parts["decode"],
         "env_steps_per_s": 1.0 / step_s,
         "player_frames_per_s": batch * p * k / step_s,
         "flops": flops,
@@ -233,10 +236,10 @@ def main() -> None:
     for r in rows:
         ps, fl = r["parts_s"], r["flops"]
         print(f"B={r['B']:3d}  step {r['step_s'] * 1e3:8.1f} ms  (denoise {ps['denoise'] * 1e3:.1f}, "
-              f"commit {ps['commit'] * 1e3:.1f}, decode {ps['decode'] * 1e3:.1f})  "
+              f"of which fused commit + first pass {ps['first_pass'] * 1e3:.1f}; decode {ps['decode'] * 1e3:.1f})  "
               f"{r['env_steps_per_s']:.2f} env steps/s  {r['player_frames_per_s']:.1f} player-frames/s  "
-              f"{fl['step'] / 1e9:.2f} GFLOP/step (denoise {fl['denoise'] / 1e9:.2f}, commit "
-              f"{fl['commit'] / 1e9:.2f}, decode {fl['decode'] / 1e9:.2f})  "
+              f"{fl['step'] / 1e9:.2f} GFLOP/step (denoise {fl['denoise'] / 1e9:.2f}, decode "
+              f"{fl['decode'] / 1e9:.2f})  "
               f"{r['fraction_of_matmul_peak']['step'] * 100:.1f} % of {peak:.0f} GFLOP/s")
     print(json.dumps(result["targets"], indent=2))
     print(f"wrote {args.out}")

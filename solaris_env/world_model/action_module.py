@@ -170,20 +170,34 @@ class ActionModule(nnx.Module):
         k, v = jnp.repeat(k, s, axis=0), jnp.repeat(v, s, axis=0)  # one copy per spatial location
         return self._keyboard_out(x_BFLD, attention(q, k, v, frame_mask_FF, self.impl))
 
-    def decode(self, x_B1LD: jax.Array, mouse_B1WA: jax.Array, keyboard_B1WA: jax.Array, angles_1J: jax.Array,
-               cache_mouse: kv_cache.KVCache, cache_keyboard: kv_cache.KVCache):
-        """One frame against the rolling caches (mouse (B*L, W, N, K), keyboard (B, W, N, K)).
+    def decode(self, x_BFLD: jax.Array, mouse_BFWA: jax.Array, keyboard_BFWA: jax.Array, angles_FJ: jax.Array,
+               cache_mouse: kv_cache.KVCache, cache_keyboard: kv_cache.KVCache, keep: int | None = None):
+        """F new frames against the rolling caches (mouse (B*L, W, N, K), keyboard (B, W, N, K)).
 
-        Returns (x_B1LD, new_cache_mouse, new_cache_keyboard); the caches include the new frame.
+        Frame f attends to the cache slots still valid after f + 1 frames are appended and to the new
+        frames <= f (for F = 1: the cache with the frame appended). Returns (x_BFLD, new_cache_mouse,
+        new_cache_keyboard); the caches get the first ``keep`` new frames (default all).
         """
-        s = x_B1LD.shape[2]
-        q, k, v = self._mouse_qkv(x_B1LD, mouse_B1WA, angles_1J)
-        cache_mouse = kv_cache.update(cache_mouse, k, v)
-        attn = attention(q, cache_mouse.k, cache_mouse.v, kv_cache.valid_mask(cache_mouse), self.impl)
-        x_B1LD = self._mouse_out(x_B1LD, attn)
-        q = self._keyboard_q(x_B1LD, angles_1J)
-        k, v = self._keyboard_kv(keyboard_B1WA, angles_1J)
-        cache_keyboard = kv_cache.update(cache_keyboard, k, v)
-        k, v = jnp.repeat(cache_keyboard.k, s, axis=0), jnp.repeat(cache_keyboard.v, s, axis=0)
-        attn = attention(q, k, v, kv_cache.valid_mask(cache_keyboard), self.impl)
-        return self._keyboard_out(x_B1LD, attn), cache_mouse, cache_keyboard
+        f, s = x_BFLD.shape[1], x_BFLD.shape[2]
+        keep = f if keep is None else keep
+
+        def attend(q, k_new, v_new, cache, repeat):
+            # (F, W + F) mask over [cache slots ; new frames], one row per query frame
+            mask = jnp.concatenate([jnp.stack([kv_cache.kept_mask(cache, i + 1) for i in range(f)], axis=-2),
+                                    jnp.broadcast_to(jnp.tril(jnp.ones((f, f), bool)),
+                                                     cache.length.shape + (f, f))], axis=-1)
+            k = jnp.concatenate([cache.k, k_new.astype(cache.k.dtype)], axis=1)
+            v = jnp.concatenate([cache.v, v_new.astype(cache.v.dtype)], axis=1)
+            if repeat > 1:
+                k, v = jnp.repeat(k, repeat, axis=0), jnp.repeat(v, repeat, axis=0)
+            if mask.ndim != 2:
+                raise ValueError(f"action caches take one fill level per layer; got length {cache.length.shape}")
+            return attention(q, k, v, mask, self.impl), kv_cache.update(cache, k_new[:, :keep], v_new[:, :keep])
+
+        q, k, v = self._mouse_qkv(x_BFLD, mouse_BFWA, angles_FJ)
+        attn, cache_mouse = attend(q, k, v, cache_mouse, 1)
+        x_BFLD = self._mouse_out(x_BFLD, attn)
+        q = self._keyboard_q(x_BFLD, angles_FJ)
+        k, v = self._keyboard_kv(keyboard_BFWA, angles_FJ)
+        attn, cache_keyboard = attend(q, k, v, cache_keyboard, s)
+        return self._keyboard_out(x_BFLD, attn), cache_mouse, cache_keyboard

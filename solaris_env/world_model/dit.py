@@ -252,17 +252,27 @@ class SelfAttention(_QKVProjection):
         k, v = stop_gradient_where(k, kv_stop_L), stop_gradient_where(v, kv_stop_L)
         return self._out(attention(q, k, v, mask_LL, self.impl) if attend is None else attend(q, k, v))
 
-    def decode(self, x_BLD: jax.Array, angles_LJ: jax.Array, cache: kv_cache.KVCache):
-        """Append this step's (post-RoPE) keys to the heads-major ``cache`` and attend to all valid slots.
+    def decode(self, x_BLD: jax.Array, angles_LJ: jax.Array, cache: kv_cache.KVCache, num_frames: int = 1,
+               keep: int | None = None):
+        """Attend from ``num_frames`` new frames (tokens packed frame-major) to the heads-major ``cache``
+        and to themselves, block-causally: frame f sees the cache slots still valid after f + 1 frames
+        are appended, and new frames <= f. Returns (y, the cache with the (post-RoPE) keys of the first
+        ``keep`` new frames appended; default all).
 
-        The attention reads the old cache's kept slots and the new keys as two blocks
-        (``attention_heads_major``), so a pass whose updated cache is discarded never builds it."""
+        The attention reads the old cache and the new keys as two blocks (``attention_heads_major``),
+        so a pass whose updated cache is discarded never builds it."""
         q, k, v = self._qkv(x_BLD, angles_LJ)
         k_BNLK, v_BNLK = k.transpose(0, 2, 1, 3), v.transpose(0, 2, 1, 3)
-        kept = kv_cache.kept_mask(cache, k_BNLK.shape[2])[..., None, None, :]  # (S,) or (B, S) -> (.., 1, 1, S)
-        kept = kept if kept.ndim == 3 else kept[:, None]
-        y = attention_heads_major(q, [(cache.k, cache.v, kept), (k_BNLK, v_BNLK, None)])
-        return self._out(y), kv_cache.update(cache, k_BNLK, v_BNLK)
+        per_frame = k_BNLK.shape[2] // num_frames
+        kept = jnp.stack([kv_cache.kept_mask(cache, (f + 1) * per_frame) for f in range(num_frames)], axis=-2)
+        kept = jnp.repeat(kept, per_frame, axis=-2)  # (L, S) or (B, L, S): one row per query token
+        kept = kept[None] if kept.ndim == 2 else kept[:, None]  # broadcast over (B,) N
+        causal = None if num_frames == 1 else masks.expand_to_tokens(np.tril(np.ones((num_frames,) * 2, bool)),
+                                                                     per_frame)
+        y = attention_heads_major(q, [(cache.k, cache.v, kept), (k_BNLK, v_BNLK, causal)])
+        keep = num_frames if keep is None else keep
+        new = slice(0, keep * per_frame)
+        return self._out(y), kv_cache.update(cache, k_BNLK[:, :, new], v_BNLK[:, :, new])
 
 
 class CrossAttention(_QKVProjection):
@@ -352,32 +362,36 @@ class DiTBlock(nnx.Module):
         x_BPFLD = _run_if(layer < self.num_action_blocks, self.action_model, run_actions, lambda x: x, x_BPFLD)
         return self._ffn_residual(x_BPFLD, mods)
 
-    def decode(self, x_BP1LD: jax.Array, cond: _Conditioning, angles_LJ: jax.Array, action_angles_1J: jax.Array,
+    def decode(self, x_BPFLD: jax.Array, cond: _Conditioning, angles_LJ: jax.Array, action_angles_FJ: jax.Array,
                layer: jax.Array, cache: kv_cache.DiTCache, cross_kv: tuple[jax.Array, jax.Array],
-               stacked_actions: bool = False):
-        """One latent frame against this layer's caches -> (x_BP1LD, updated caches); ``cross_kv`` = this
-        layer's context keys/values, heads-major, each (B*P, N, M, K). ``stacked_actions``: this block's
-        ``action_model`` holds every layer's parameters (leading layer axis) and the branch that runs it
-        picks layer ``layer`` (so layers without an action module never copy those weights)."""
+               stacked_actions: bool = False, keep: int | None = None):
+        """F new latent frames against this layer's caches -> (x_BPFLD, updated caches).
+
+        The new frames are block-causal: frame f sees the cache slots still valid after f + 1 frames
+        are appended, and new frames <= f (F = 1: one frame against cache + itself); the caches get the
+        first ``keep`` new frames (default all). ``cross_kv`` = this layer's context keys/values,
+        heads-major, each (B*P, N, M, K). ``stacked_actions``: this block's ``action_model`` holds every
+        layer's parameters (leading layer axis) and the branch that runs it picks layer ``layer`` (so
+        layers without an action module never copy those weights)."""
         mods = self._modulation(cond.e0_BPF6D)
-        x_BP1LD = x_BP1LD + cond.player_PD[None, :, None, None].astype(x_BP1LD.dtype)
-        y, self_cache = self.self_attn.decode(self._attn_input(x_BP1LD, mods), angles_LJ, cache.self_attn)
-        x_BP1LD = self._cross_and_actions_input(x_BP1LD, y, mods,
+        x_BPFLD = x_BPFLD + cond.player_PD[None, :, None, None].astype(x_BPFLD.dtype)
+        b, p, f, s, d = x_BPFLD.shape
+        y, self_cache = self.self_attn.decode(self._attn_input(x_BPFLD, mods), angles_LJ, cache.self_attn, f, keep)
+        x_BPFLD = self._cross_and_actions_input(x_BPFLD, y, mods,
                                                 lambda h: self.cross_attn.attend_heads_major(h, *cross_kv))
-        b, p, f, s, d = x_BP1LD.shape
 
         def run_actions(module, x, mouse_cache, keyboard_cache):
             x, mouse_cache, keyboard_cache = module.decode(
                 x.reshape(b * p, f, s, d), _fold(cond.mouse_BPFWA), _fold(cond.keyboard_BPFWA),
-                action_angles_1J, mouse_cache, keyboard_cache)
+                action_angles_FJ, mouse_cache, keyboard_cache, keep)
             return x.reshape(b, p, f, s, d), mouse_cache, keyboard_cache
 
-        x_BP1LD, mouse_cache, keyboard_cache = _run_if(
+        x_BPFLD, mouse_cache, keyboard_cache = _run_if(
             layer < self.num_action_blocks, self.action_model, run_actions, lambda x, mc, kc: (x, mc, kc),
-            x_BP1LD, cache.mouse, cache.keyboard,
+            x_BPFLD, cache.mouse, cache.keyboard,
             select=_layer_of(layer) if stacked_actions else None)
         new_cache = kv_cache.DiTCache(self_attn=self_cache, mouse=mouse_cache, keyboard=keyboard_cache)
-        return self._ffn_residual(x_BP1LD, mods), new_cache
+        return self._ffn_residual(x_BPFLD, mods), new_cache
 
 
 # ---------------------------------------------------------------------------------------------
@@ -565,13 +579,35 @@ class WorldDiT(nnx.Module):
                                    (context_kv.k_LBPNMK, context_kv.v_LBPNMK), keep_cache=False, unroll=unroll,
                                    layers=layers)[0]
 
+    def commit_denoise_step_cached(self, x, t, cond, context_kv: ContextKV, mouse, keyboard,
+                                   cache: kv_cache.DiTCache, start_frame: int | jax.Array, *, unroll: bool = False,
+                                   layers: "tuple[DiTBlock, ...] | None" = None):
+        """The commit pass of one frame and the first denoising pass of the next, as ONE pass of two frames.
+
+        ``x`` (B, P, 2, h, w, C) = [the previous frame's clean latent ; the next frame's noisy input] at
+        positions ``start_frame`` and ``start_frame + 1``, ``t`` (B, P, 2) their timesteps (0 for the
+        commit), ``cond`` (B, P, 2, h, w, Cc), ``mouse``/``keyboard`` the action sequence (B, P,
+        k + action_window, A) whose windows are frame 0's ([0, window)) and frame 1's ([k, k + window)).
+        Block-causal: frame 0 never sees frame 1, so its keys/values are exactly the separate commit
+        pass's (``decode_step_cached`` at t = 0), and frame 1 sees the cache with frame 0 appended, as a
+        denoising pass after that commit. Returns ``(v (B, P, 1, h, w, C) of frame 1, the cache with
+        frame 0 written)``: equal to the two passes up to float rounding, with one pass's fixed costs.
+        """
+        cond_in, tokens, e = self._prepare_cached(x, t, cond, context_kv, mouse, keyboard, num_frames=2)
+        v, new_cache = self._decode_layers(tokens, e, cond_in, cache, start_frame, self._fold_kv,
+                                           (context_kv.k_LBPNMK, context_kv.v_LBPNMK), keep_cache=True,
+                                           unroll=unroll, layers=layers, keep=1)
+        return v[:, :, 1:], new_cache
+
     # -- internals -----------------------------------------------------------------------------------
     @staticmethod
     def _fold_kv(block, kv):
         return _fold(kv[0]), _fold(kv[1])
 
-    def _prepare_cached(self, x, t, cond, context_kv: ContextKV, mouse, keyboard):
-        """Shape checks and ``_prepare`` for the ``*_cached`` entry points (no context projection)."""
+    def _prepare_cached(self, x, t, cond, context_kv: ContextKV, mouse, keyboard, num_frames: int = 1):
+        """Shape checks and ``_prepare`` for the ``*_cached`` entry points (no context projection);
+        ``mouse``/``keyboard`` are the (B, P, k * (F - 1) + action_window, A) action sequence of the F
+        frames (for F = 1: the frame's window)."""
         c = self.cfg
         b, p = x.shape[:2]
         want = (c.dit.num_layers, b, p, c.dit.num_heads, None, c.dit.head_dim)
@@ -580,25 +616,29 @@ class WorldDiT(nnx.Module):
                 raise ValueError(f"{name} has shape {a.shape}; expected (layers, B, P, N, M, K) = "
                                  f"{tuple('M' if w is None else w for w in want)}")
         context_shape = jax.ShapeDtypeStruct((b, p, context_kv.k_LBPNMK.shape[4], c.context_width), jnp.float32)
-        self._validate(x, t, cond, context_shape, mouse, keyboard, expect_frames=1)
-        return self._prepare(x, t, cond, None, mouse[:, :, None], keyboard[:, :, None])
+        self._validate(x, t, cond, context_shape, mouse, keyboard, expect_frames=num_frames)
+        k, w = c.frames_per_step, c.action_window
+        windows = lambda a: jnp.stack([a[:, :, k * f:k * f + w] for f in range(num_frames)], axis=2)
+        return self._prepare(x, t, cond, None, windows(mouse), windows(keyboard))
 
     def _decode_layers(self, tokens, e, cond_in: _Conditioning, cache: kv_cache.DiTCache, start_frame,
-                       cross_kv_of, per_layer_kv, keep_cache: bool, unroll: bool, layers=None):
+                       cross_kv_of, per_layer_kv, keep_cache: bool, unroll: bool, layers=None,
+                       keep: int | None = None):
         """The layer scan of a decode step; ``cross_kv_of(block, per_layer_kv[layer])`` gives the layer's
         heads-major cross-attention (k, v), each (B*P, N, M, K). Without ``keep_cache`` the updated
         caches are not outputs of the scan (so XLA never builds them) and None is returned for them."""
         c, d = self.cfg, self.cfg.dit
         gh, gw = self._grid()
-        angles = rope.rope_3d_angles(d.rope_split, d.rope_theta, 1, gh, gw, tokens.shape[1], start_frame)
-        action_angles = rope.temporal_rope_angles(c.action.rope_dims, c.action.rope_theta, 1, start_frame)
+        num_frames = tokens.shape[2]  # tokens (B, P, F, L, D); > 1: block-causal, the first ``keep`` cached
+        angles = rope.rope_3d_angles(d.rope_split, d.rope_theta, num_frames, gh, gw, tokens.shape[1], start_frame)
+        action_angles = rope.temporal_rope_angles(c.action.rope_dims, c.action.rope_theta, num_frames, start_frame)
         if layers is not None:  # one module per layer, static indices (see decode_step_cached)
             if len(layers) != d.num_layers:
                 raise ValueError(f"layers has {len(layers)} blocks; the config has num_layers={d.num_layers}")
             new_caches = []
             for i, block in enumerate(layers):
                 tokens, new_cache = block.decode(tokens, cond_in, angles, action_angles, i, _static_layer(cache, i),
-                                                 cross_kv_of(block, _static_layer(per_layer_kv, i)))
+                                                 cross_kv_of(block, _static_layer(per_layer_kv, i)), keep=keep)
                 new_caches.append(new_cache)
             stacked = jax.tree.map(lambda *a: jnp.stack(a), *new_caches) if keep_cache else None
             return self._unpatchify(self.head(tokens, e)), stacked
@@ -614,7 +654,7 @@ class WorldDiT(nnx.Module):
             (h, caches), (layer_state, layer) = carry, xs
             block = nnx.merge(graphdef, action_state, layer_state)
             h, new_cache = block.decode(h, cond_in, angles, action_angles, layer, at(cache, layer),
-                                        cross_kv_of(block, at(per_layer_kv, layer)), stacked_actions=True)
+                                        cross_kv_of(block, at(per_layer_kv, layer)), stacked_actions=True, keep=keep)
             if keep_cache:
                 caches = jax.tree.map(lambda a, n: jax.lax.dynamic_update_index_in_dim(a, n.astype(a.dtype), layer, 0),
                                       caches, new_cache)

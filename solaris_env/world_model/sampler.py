@@ -84,7 +84,7 @@ def _check_timesteps(timesteps) -> np.ndarray:
 
 
 def sample_frame(denoise_fn: DenoiseFn, z: jax.Array, key: jax.Array, timesteps: Sequence[float],
-                 num_train_timesteps: int = 1000, unroll: bool = False) -> jax.Array:
+                 num_train_timesteps: int = 1000, unroll: bool = False, first_v: jax.Array | None = None) -> jax.Array:
     """Run the x0 + fresh-noise rule from ``z`` (pure noise at timesteps[0]) down to t = 0.
 
     Args:
@@ -94,24 +94,33 @@ def sample_frame(denoise_fn: DenoiseFn, z: jax.Array, key: jax.Array, timesteps:
         timesteps: decreasing, ending in 0 (``ar_schedule`` / ``shifted_schedule``).
         unroll: trace the steps as straight-line code instead of a loop (same result; lets XLA's cost
             analysis, which counts a loop body once, count every step).
+        first_v: the velocity of the first step, ``denoise_fn(z, timesteps[0])``, when the caller has
+            computed it already (in a pass fused with other work); the same result.
     Returns:
         x0 (f32, shape of z): the prediction of the last step. The denoiser runs len(timesteps) - 1
-        times inside one ``lax.scan`` (traced once).
+        times (len(timesteps) - 2 with ``first_v``) inside one ``lax.scan`` (traced once).
     """
     t = _check_timesteps(timesteps)
     scale = 1.0 / float(num_train_timesteps)
     keys = jax.random.split(key, t.shape[0] - 1)
 
-    def body(z_t, step):
-        t_now, t_next, k = step
-        v = denoise_fn(z_t, t_now)
+    def update(z_t, v, t_now, t_next, k):
         x0 = z_t.astype(jnp.float32) - (t_now * scale) * v.astype(jnp.float32)
         sigma_next = t_next * scale
         z_next = (1.0 - sigma_next) * x0 + sigma_next * jax.random.normal(k, x0.shape, jnp.float32)
-        return z_next.astype(z_t.dtype), None
+        return z_next.astype(z_t.dtype)
 
+    def body(z_t, step):
+        t_now, t_next, k = step
+        return update(z_t, denoise_fn(z_t, t_now), t_now, t_next, k), None
+
+    first = 0
+    if first_v is not None:
+        if first_v.shape != z.shape:
+            raise ValueError(f"first_v has shape {first_v.shape}; expected the shape of z, {z.shape}")
+        z, first = update(z, first_v, jnp.float32(t[0]), jnp.float32(t[1]), keys[0]), 1
     # sigma_n = 0, so the final carry is exactly the last x0.
-    x0, _ = jax.lax.scan(body, z, (jnp.asarray(t[:-1]), jnp.asarray(t[1:]), keys), unroll=unroll)
+    x0, _ = jax.lax.scan(body, z, (jnp.asarray(t[first:-1]), jnp.asarray(t[first + 1:]), keys[first:]), unroll=unroll)
     return x0.astype(jnp.float32)
 
 

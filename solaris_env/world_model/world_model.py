@@ -156,9 +156,9 @@ class WorldState:
     context_BPMC: jax.Array  # (B, P, M, Ce): image-encoder tokens of the first frames
     context_kv: ContextKV  # their cross-attention K/V for every DiT layer, leaves (B, layers, 1, P, N, M, K)
     cond_BPFhwC: jax.Array  # (B, P, Fc, h, w, Cc): conditioning of latent frames 0..Fc-1 (last = steady)
-    dit_cache: kv_cache.DiTCache  # per-world rolling caches, leaves (B, layers, 1, ...)
+    dit_cache: kv_cache.DiTCache  # rolling caches of the committed frames (all but the last), leaves (B, layers, 1, ...)
     vae_cache: Any  # streaming VAE-decoder cache, leaves (B, P, ...)
-    latent_BP1hwC: jax.Array  # (B, P, 1, h, w, C) f32: the last generated (committed) latent frame
+    latent_BP1hwC: jax.Array  # (B, P, 1, h, w, C) f32: the last generated latent frame (the next step commits it)
     frame0_BPHW3: jax.Array  # (B, P, H, W, 3) uint8: latent frame 0 decoded (set by init / reset)
 
     @property
@@ -225,16 +225,18 @@ class Programs:
         return (dit, layers, nnx.merge(self.graphdefs[1], params.vae),
                 nnx.merge(self.graphdefs[2], params.image_encoder))
 
-    def _dit_args(self, z_P1hwC, t, ws_parts, start):
-        """``WorldDiT.*_step_cached`` arguments for one world (DiT batch 1). ``ws_parts`` carries the
-        context as its per-layer cross-attention K/V (``WorldDiT.context_kv``, computed at init)."""
+    def _dit_args(self, z_PFhwC, t, ws_parts, start):
+        """``WorldDiT.*_step_cached`` arguments for one world (DiT batch 1): F frames at positions
+        ``start``.., ``t`` a scalar or (F,) timesteps. ``ws_parts`` = (cond (P, F, h, w, Cc), the context
+        as its per-layer cross-attention K/V (``WorldDiT.context_kv``, computed at init), the action
+        sequence (P, k * (F - 1) + action_window, A), the DiT cache)."""
         cfg = self.cfg
-        cond, context_kv, window, cache = ws_parts
+        cond, context_kv, actions, cache = ws_parts
         kb = cfg.action.keyboard_dim
-        p = z_P1hwC.shape[0]
-        t_1P1 = timesteps_to_stream(cfg, jnp.full((1, p, 1), t, jnp.float32))
-        return (to_stream(cfg, z_P1hwC[None]), t_1P1, to_stream(cfg, cond[None]), context_kv,
-                to_stream(cfg, window[None, :, :, kb:]), to_stream(cfg, window[None, :, :, :kb]), cache, start)
+        p, f = z_PFhwC.shape[:2]
+        t_1PF = timesteps_to_stream(cfg, jnp.broadcast_to(jnp.asarray(t, jnp.float32), (1, p, f)))
+        return (to_stream(cfg, z_PFhwC[None]), t_1PF, to_stream(cfg, cond[None]), context_kv,
+                to_stream(cfg, actions[None, :, :, kb:]), to_stream(cfg, actions[None, :, :, :kb]), cache, start)
 
     def _velocity(self, dit, z_P1hwC, t, ws_parts, start):
         """v of one latent frame (a denoising pass: the cache is read, not updated): v_P1hwC.
@@ -247,34 +249,49 @@ class Programs:
         k = self.cfg.frames_per_step
         return jnp.concatenate([ws.actions_BPWA[:, k:], actions_PkA.astype(jnp.float32)], axis=1)
 
-    def _frame_inputs(self, ws: WorldState, actions_PkA):
-        """(cond of the frame, context, its action window, cache) for the next latent frame."""
-        window = self._window(ws, actions_PkA)
-        index = jnp.minimum(ws.frame_index_B, self.cond_frames - 1)
-        cond = jax.lax.dynamic_slice_in_dim(ws.cond_BPFhwC, index, 1, axis=1)  # (P, 1, h, w, Cc)
-        return cond, ws.context_kv, window, ws.dit_cache
+    def _cond_at(self, ws: WorldState, index):
+        """Conditioning of latent frame ``index`` (traced): (P, 1, h, w, Cc)."""
+        index = jnp.minimum(index, self.cond_frames - 1)
+        return jax.lax.dynamic_slice_in_dim(ws.cond_BPFhwC, index, 1, axis=1)
 
-    def _sample(self, dit, parts, frame_key, start):
+    def _noise(self, frame_key, num_players: int):
+        """(initial noise (P, 1, h, w, C), re-noising key) of one latent frame."""
         cfg = self.cfg
         k_noise, k_renoise = jax.random.split(frame_key)
-        shape = (parts[0].shape[0], 1, cfg.latent_height, cfg.latent_width, cfg.latent_channels)
-        z = jax.random.normal(k_noise, shape, jnp.float32)
+        shape = (num_players, 1, cfg.latent_height, cfg.latent_width, cfg.latent_channels)
+        return jax.random.normal(k_noise, shape, jnp.float32), k_renoise
+
+    def _sample(self, dit, parts, z, k_renoise, start, first_v=None):
+        cfg = self.cfg
         denoise = lambda x, t: self._velocity(dit, x, t, parts, start)
         return sampler.sample_frame(denoise, z, k_renoise, self.timesteps, cfg.sampler.num_train_timesteps,
-                                    unroll=self.unroll)
+                                    unroll=self.unroll, first_v=first_v)
 
-    def _commit(self, dit, parts, x0_P1hwC, start):
-        """Commit pass at t = 0 on the clean latent: writes this frame's keys/values into the caches."""
-        return dit[0].decode_step_cached(*self._dit_args(x0_P1hwC, 0.0, parts, start), layers=dit[1])[1]
+    def _first_pass(self, dit, ws: WorldState, actions_PkA):
+        """The fused pass of a step: commit latent frame i - 1 (``ws.latent_BP1hwC`` at t = 0) and the
+        first denoising pass of frame i (``WorldDiT.commit_denoise_step_cached``).
+
+        Returns (z: frame i's initial noise, k_renoise, v of that pass, the cache with frame i - 1)."""
+        i = ws.frame_index_B
+        _, frame_key = jax.random.split(ws.key_B)
+        z, k_renoise = self._noise(frame_key, ws.latent_BP1hwC.shape[0])
+        x = jnp.concatenate([ws.latent_BP1hwC, z], axis=1)  # (P, 2, h, w, C): [clean i - 1 ; noisy i]
+        cond = jnp.concatenate([self._cond_at(ws, i - 1), self._cond_at(ws, i)], axis=1)
+        actions = jnp.concatenate([ws.actions_BPWA, actions_PkA.astype(jnp.float32)], axis=1)  # windows i-1, i
+        t = jnp.asarray([0.0, self.timesteps[0]], jnp.float32)
+        v, cache = dit[0].commit_denoise_step_cached(*self._dit_args(x, t, (cond, ws.context_kv, actions, ws.dit_cache),
+                                                                     i - 1), layers=dit[1])
+        return z, k_renoise, from_stream(self.cfg, v)[0], cache
 
     def _denoise_world(self, params, ws: WorldState, actions_PkA):
+        """Latent frame i of one world and the DiT cache with frame i - 1 committed."""
         dit = self._modules(params)[:2]
-        _, frame_key = jax.random.split(ws.key_B)
-        return self._sample(dit, self._frame_inputs(ws, actions_PkA), frame_key, ws.frame_index_B)
+        z, k_renoise, v, cache = self._first_pass(dit, ws, actions_PkA)
+        parts = (self._cond_at(ws, ws.frame_index_B), ws.context_kv, self._window(ws, actions_PkA), cache)
+        return self._sample(dit, parts, z, k_renoise, ws.frame_index_B, first_v=v), cache
 
-    def _commit_world(self, params, ws: WorldState, actions_PkA, x0_P1hwC):
-        dit = self._modules(params)[:2]
-        return self._commit(dit, self._frame_inputs(ws, actions_PkA), x0_P1hwC, ws.frame_index_B)
+    def _first_pass_world(self, params, ws: WorldState, actions_PkA):
+        return self._first_pass(self._modules(params)[:2], ws, actions_PkA)[2:]
 
     def _decode_world(self, params, ws: WorldState, x0_P1hwC):
         vae = self._modules(params)[2]
@@ -313,8 +330,7 @@ class Programs:
         start = jnp.zeros((), jnp.int32)
         parts = (cond[:, :1], context_kv, actions, cache)
         key, frame_key = jax.random.split(key)
-        x0 = self._sample(dit, parts, frame_key, start)
-        cache = self._commit(dit, parts, x0, start)
+        x0 = self._sample(dit, parts, *self._noise(frame_key, first.shape[0]), start)  # committed by step 1
         video, vae_cache = vae.decode_step(x0, None)  # latent frame 0 -> 1 video frame
         return WorldState(key_B=key, frame_index_B=start + 1, actions_BPWA=actions, context_BPMC=context,
                           context_kv=context_kv,
@@ -328,16 +344,17 @@ class Programs:
         return jax.lax.map(lambda args: self._init_world(params, *args), (first_frames_BPHW3, first_actions_BPA, keys))
 
     def step(self, params, state: WorldState, actions_BPkA):
-        x0 = self.denoise(params, state, actions_BPkA)
-        dit_cache = self.commit(params, state, actions_BPkA, x0)
+        x0, dit_cache = self.denoise(params, state, actions_BPkA)
         frames, vae_cache = self.decode(params, state, x0)
         return frames, jax.vmap(self._advance)(state, actions_BPkA, x0, dit_cache, vae_cache)
 
     def denoise(self, params, state: WorldState, actions_BPkA):
+        """Every DiT pass of a step: (x0 (B, P, 1, h, w, C), the caches with the previous frame committed)."""
         return jax.vmap(self._denoise_world, in_axes=(None, 0, 0))(params, state, actions_BPkA)
 
-    def commit(self, params, state: WorldState, actions_BPkA, x0_BP1hwC):
-        return jax.vmap(self._commit_world, in_axes=(None, 0, 0, 0))(params, state, actions_BPkA, x0_BP1hwC)
+    def first_pass(self, params, state: WorldState, actions_BPkA):
+        """The fused commit + first denoising pass alone (part of ``denoise``; timed by the benchmark)."""
+        return jax.vmap(self._first_pass_world, in_axes=(None, 0, 0))(params, state, actions_BPkA)
 
     def decode(self, params, state: WorldState, x0_BP1hwC):
         # one world at a time: the VAE's full-resolution convolutions run ~1.5x faster on CPU with the
