@@ -9,7 +9,7 @@
 Frame 0 (model-spec §5.4). As in the reference, latent frame 0 is *generated* from noise conditioned
 on the first frame (mask + its VAE encoding + image-encoder tokens), not copied. The causal VAE decodes
 latent frame 0 to ONE video frame and every later latent frame to k frames, so ``init`` generates,
-commits and decodes latent frame 0 and stores that frame in ``state.frame0_BPHW3`` (uint8); every
+decodes latent frame 0 (its commit is left to the first ``step``) and stores that frame in ``state.frame0_BPHW3`` (uint8); every
 ``step`` then generates latent frame i >= 1 and returns exactly k frames. Video frame index of the
 frames returned by the n-th step (n = 1, 2, ...): k*(n-1)+1 .. k*n, frame 0 being ``frame0_BPHW3``.
 
@@ -19,10 +19,14 @@ k*(n-1)+1 .. k*n. The state keeps the last ``action_window`` actions as a rollin
 with ``first_actions`` (default: all zeros, "no-op") repeated: exactly the reference's left padding
 (model-spec §4.3), so latent frame i sees actions k*i - action_window + 1 .. k*i, clamped at 0.
 
-One step = few-step sampling (``sampler.sample_frame`` over ``cfg.sampler`` timesteps, x0 prediction +
-fresh noise; the DiT's ``decode_step`` against the rolling KV cache, update discarded), a commit pass
-at t = 0 on the final x0 that writes the cache, and a streaming VAE decode of that latent frame (the
-decoder's causal cache lives in the state).
+One step = few-step sampling of latent frame i (``sampler.sample_frame`` over ``cfg.sampler``
+timesteps, x0 prediction + fresh noise; the DiT's passes against the rolling KV cache, update
+discarded) and a streaming VAE decode of it (the decoder's causal cache lives in the state). The
+reference's commit pass (frame i at t = 0, writing the cache) is fused into the NEXT step's first
+pass: ``WorldDiT.commit_denoise_step_cached`` runs [clean frame i - 1 at t = 0 ; noisy frame i at
+t = 1000] as two block-causal frames and writes only frame i - 1, so the state's cache holds every
+generated frame but the last (``latent_BP1hwC``, the pending one). Same numbers as the separate passes
+up to float rounding (``test_streaming_step_equals_offline_rollout``).
 
 Static shapes, memory. Every state leaf has a fixed shape with a leading world axis B. The KV caches
 are rolling windows (``kv_cache``), the VAE cache holds a fixed number of frames, the action buffer is
@@ -37,7 +41,7 @@ Work per step. The context (image-encoder tokens of the first frames) is constan
 its cross-attention keys/values for every DiT layer in the state (``context_kv``, ``WorldDiT.context_kv``)
 and the passes read them (``WorldDiT.denoise_step_cached`` / ``decode_step_cached``) instead of
 re-projecting the context 5 times per step. The denoising passes never build the updated KV cache
-(they attend to "kept cache slots + this frame" as two blocks); only the commit pass writes it.
+(they attend to "kept cache slots + this frame" as two blocks); only the fused first pass writes it.
 
 Per-world independence. Every world has its own PRNG key stream, RoPE start frame and KV-cache fill
 level: the DiT and the sampler run under ``jax.vmap`` over worlds (the DiT sees batch 1 per world), the
@@ -189,8 +193,9 @@ class Programs:
     """Pure functions of ``(params, ...)`` for one config; ``params`` is a ``StepParams``
     (``step_params`` converts the (dit, vae, image_encoder) states that ``WorldModel.params`` returns).
 
-    ``init``, ``step``, ``reset_one`` are what ``WorldModel`` jits; ``denoise``, ``commit``, ``decode``
-    are the three parts of ``step`` (the benchmark times them separately).
+    ``init``, ``step``, ``reset_one`` are what ``WorldModel`` jits; ``denoise`` and ``decode`` are the
+    parts of ``step``, ``first_pass`` the fused commit + first pass of ``denoise`` (the benchmark times
+    them separately).
     """
 
     def __init__(self, cfg: WorldModelConfig, graphdefs: tuple, *, unroll: bool = False):
@@ -317,7 +322,7 @@ class Programs:
         return jnp.concatenate([cond0, jnp.moveaxis(rest, 0, 1)], axis=1)
 
     def _init_world(self, params, first_PHW3_uint8, first_actions_PA, key):
-        """One world: encode the first frames, then generate, commit and decode latent frame 0."""
+        """One world: encode the first frames, then generate and decode latent frame 0 (step 1 commits it)."""
         cfg = self.cfg
         dit, layers, vae, encoder = self._modules(params)
         first = frames_to_model(first_PHW3_uint8)
