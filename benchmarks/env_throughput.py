@@ -1,15 +1,16 @@
 """Env throughput: steps/s, player-frames/s, step latency and peak memory of the dream and the real envs.
 
-    .venv/bin/python benchmarks/env_throughput.py                  # tiny preset, ~10-20 min on 2 CPU cores
-    .venv/bin/python benchmarks/env_throughput.py --preset test --quick   # smoke run
+    .venv/bin/python benchmarks/env_throughput.py                  # the shipped model, ~10-20 min on 2 CPU cores
+    .venv/bin/python benchmarks/env_throughput.py --model test --quick     # smoke run
 
 Writes ``benchmarks/results/env_throughput.json`` with one row per configuration, each measured in its own
 process (so ``peak_rss_mb`` is that configuration's own peak resident memory, model and compiled programs
 included):
 
 * ``dream`` (``DreamParallelEnv``, B = 1) and ``vector`` (``DreamVectorEnv``, N worlds in one batched model
-  call, SAME_STEP autoreset) on a RANDOM-INIT preset (``--preset``, default ``tiny``; no trained default
-  model ships yet, and speed does not depend on the weight values), and ``real`` (``RealParallelEnv``, the
+  call, SAME_STEP autoreset) on ``--model``: ``default`` (the shipped model, what the env loads when none
+  is named), a checkpoint directory, or a preset name (random-init weights; speed does not depend on the
+  weight values), and ``real`` (``RealParallelEnv``, the
   voxel engine at ``--real-resolution``).
 * ``env_steps_per_s``: world-steps per second (a vector ``step`` call advances N worlds, so N x calls/s).
   One dream step is k = 4 engine ticks; one real step is one tick, so ``ticks_per_s`` compares them.
@@ -97,7 +98,19 @@ def bench_vector(env, steps: int) -> dict:
             "step_latency_ms": {"p50": 1e3 * percentile(times, 50), "p99": 1e3 * percentile(times, 99)}}
 
 
-def measure(kind: str, worlds: int, preset: str, steps: int, resolution: int) -> dict:
+def load_model(name: str):
+    """``default`` -> the shipped model; an existing directory -> that checkpoint; else a preset (random init)."""
+    from solaris_env.dream_env import DEFAULT_CHECKPOINT
+    from solaris_env.world_model.world_model import WorldModel
+
+    if name == "default":
+        return WorldModel.load(DEFAULT_CHECKPOINT), f"default ({DEFAULT_CHECKPOINT.name}, trained)"
+    if Path(name).is_dir():
+        return WorldModel.load(name), f"checkpoint {name}"
+    return WorldModel.from_preset(name, seed=0), f"{name} (random-init weights)"
+
+
+def measure(kind: str, worlds: int, model_name: str, steps: int, resolution: int) -> dict:
     """One configuration, in this process."""
     load_before = os.getloadavg()[0]
     t0 = time.perf_counter()
@@ -109,9 +122,7 @@ def measure(kind: str, worlds: int, preset: str, steps: int, resolution: int) ->
         row = bench_parallel(env, steps, ticks_per_step=1)
         row["frame_size"] = [resolution, resolution]
     else:
-        from solaris_env.world_model.world_model import WorldModel
-
-        model = WorldModel.from_preset(preset, seed=0)
+        model, described = load_model(model_name)
         build = time.perf_counter() - t0
         if kind == "dream":
             from solaris_env.dream_env import DreamParallelEnv
@@ -124,7 +135,7 @@ def measure(kind: str, worlds: int, preset: str, steps: int, resolution: int) ->
             env = DreamVectorEnv(worlds, model=model, max_steps=1_000_000)
             row = bench_vector(env, steps)
         row["frame_size"] = list(model.frame_shape[:2])
-        row["preset"] = f"{preset} (random-init weights)"
+        row["model"] = described
     peak_kb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     return {"env": kind, "worlds": worlds, "build_s": build, **row, "peak_rss_mb": peak_kb / 1024,
             "load_avg_1m_before_after": [round(load_before, 2), round(os.getloadavg()[0], 2)]}
@@ -132,7 +143,8 @@ def measure(kind: str, worlds: int, preset: str, steps: int, resolution: int) ->
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--preset", default="tiny", help="world-model preset (random-init)")
+    parser.add_argument("--model", default="default",
+                        help="'default' (the shipped model), a checkpoint directory, or a preset name (random init)")
     parser.add_argument("--steps", type=int, default=60, help="timed steps at B = 1 (fewer for larger N)")
     parser.add_argument("--real-resolution", type=int, default=64)
     parser.add_argument("--worlds", type=int, nargs="+", default=list(WORLDS))
@@ -144,7 +156,7 @@ def main(argv: list[str] | None = None) -> None:
         kind, worlds = args.one.split(":")
         worlds = int(worlds)
         steps = max(5, args.steps // max(1, worlds // 4)) if kind == "vector" else args.steps
-        print(json.dumps(measure(kind, worlds, args.preset, steps, args.real_resolution)))
+        print(json.dumps(measure(kind, worlds, args.model, steps, args.real_resolution)))
         return
     if args.quick:
         args.steps, args.worlds = 10, [4]
@@ -153,7 +165,7 @@ def main(argv: list[str] | None = None) -> None:
     rows = []
     for kind, worlds in configs:
         cmd = [sys.executable, "-m", "benchmarks.env_throughput", "--one", f"{kind}:{worlds}",
-               "--preset", args.preset, "--steps", str(args.steps), "--real-resolution", str(args.real_resolution)]
+               "--model", args.model, "--steps", str(args.steps), "--real-resolution", str(args.real_resolution)]
         out = subprocess.run(cmd, capture_output=True, text=True, check=True, cwd=Path(__file__).parent.parent)
         row = json.loads(out.stdout.strip().splitlines()[-1])
         rows.append(row)
@@ -162,8 +174,8 @@ def main(argv: list[str] | None = None) -> None:
               f"p99 {row['step_latency_ms']['p99']:.1f} ms, peak RSS {row['peak_rss_mb']:.0f} MB", flush=True)
     from benchmarks.machine import machine_info
 
-    result = {"preset": args.preset, "note": "dream rows use RANDOM-INIT weights (no trained default model ships "
-              "yet); shared 2-core CPU: see the load averages", "rows": rows, "machine": machine_info(load_before)}
+    result = {"model": args.model, "note": "2-core CPU shared with other jobs: see the load averages",
+              "rows": rows, "machine": machine_info(load_before)}
     args.out.parent.mkdir(parents=True, exist_ok=True)
     tmp = args.out.with_suffix(".json.tmp")
     tmp.write_text(json.dumps(result, indent=2) + "\n")
