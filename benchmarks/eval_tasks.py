@@ -38,7 +38,6 @@ prints the Markdown table in the layout of the paper's Table 3.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import sys
@@ -420,7 +419,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.inception_weights is not None:
         raise SystemExit("--inception-weights: FID with InceptionV3 is not supported yet; this benchmark reports "
                          "an in-domain Fréchet distance on judge features instead (drop the flag)")
-    from benchmarks.machine import machine_info
+    from benchmarks.machine import machine_info, write_result
     from solaris_env.world_model.world_model import WorldModel
 
     load_before = os.getloadavg()
@@ -439,12 +438,7 @@ def main(argv: list[str] | None = None) -> int:
     print(result["table"])
     print()
     print(result["table_per_type"])
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.name}.tmp")
-    tmp.write_text(json.dumps(result, indent=2) + "\n")
-    os.replace(tmp, out)
-    print(f"wrote {out}", file=sys.stderr)
+    write_result(args.out, result)
     return 0
 
 

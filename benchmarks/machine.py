@@ -25,3 +25,15 @@ def machine_info(load_before: tuple[float, float, float]) -> dict:
     return {"cpu": cpu_model(), "cores": os.cpu_count(), "python": platform.python_version(),
             "jax": jax.__version__, "jax_backend": jax.default_backend(), "platform": platform.platform(),
             "load_avg_1m_before_after": [round(load_before[0], 2), round(os.getloadavg()[0], 2)]}
+
+
+def write_result(path, result: dict) -> None:
+    """Write a benchmark's JSON atomically (a temporary file renamed into place) and say where."""
+    import json
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(json.dumps(result, indent=2) + "\n")
+    os.replace(tmp, path)
+    print(f"wrote {path}")

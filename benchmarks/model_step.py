@@ -44,7 +44,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.machine import machine_info
+from benchmarks.machine import machine_info, write_result
 
 RESULTS = Path(__file__).parent / "results" / "model_step.json"
 BATCHES = (1, 4, 16)
@@ -229,10 +229,7 @@ def main() -> None:
         "run": {"timed_rounds": rounds, "statistic": "median over rounds (one step + each part per round)",
                 "xla_flags": os.environ.get("XLA_FLAGS", "")},
     }
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = args.out.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(result, indent=2) + "\n")
-    os.replace(tmp, args.out)
+    write_result(args.out, result)
     for r in rows:
         ps, fl = r["parts_s"], r["flops"]
         print(f"B={r['B']:3d}  step {r['step_s'] * 1e3:8.1f} ms  (denoise {ps['denoise'] * 1e3:.1f}, "
@@ -242,7 +239,6 @@ def main() -> None:
               f"{fl['decode'] / 1e9:.2f})  "
               f"{r['fraction_of_matmul_peak']['step'] * 100:.1f} % of {peak:.0f} GFLOP/s")
     print(json.dumps(result["targets"], indent=2))
-    print(f"wrote {args.out}")
 
 
 if __name__ == "__main__":

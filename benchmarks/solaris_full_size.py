@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.machine import machine_info
+from benchmarks.machine import machine_info, write_result
 
 RESULTS = Path(__file__).parent / "results" / "solaris_full_size.json"
 TREE = Path(__file__).resolve().parent.parent / "tests" / "world_model" / "fixtures" / "solaris-param-tree.txt"
@@ -187,11 +187,7 @@ def main() -> None:
         "machine": machine_info(load_before),
     }
     print(json.dumps({k: v for k, v in result.items() if k not in ("machine",)}, indent=2))
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = args.out.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(result, indent=2) + "\n")
-    os.replace(tmp, args.out)
-    print(f"wrote {args.out}")
+    write_result(args.out, result)
 
 
 if __name__ == "__main__":
