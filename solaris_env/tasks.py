@@ -34,6 +34,10 @@ variant, ``"<name>_truth"`` the ground-truth one.
 * ``"approach_partner"`` / ``"approach_partner_truth"`` (:class:`ApproachPartnerTask`): +1 for a step after
   which the player is clearly closer to the partner than ``gap`` steps before (while the partner is on
   screen), -1 when clearly farther, else 0.
+
+Building (:class:`BuildStructureTask`, judge or truth like the partner tasks, any number of players):
+``"build_structure"`` / ``"build_structure_truth"``: 1 for each step that ends with a block built this
+episode on the player's screen (the ``structure`` question), else 0.
 """
 
 from __future__ import annotations
@@ -203,19 +207,21 @@ def judge_centred(judge, frames_NHW3: np.ndarray) -> np.ndarray:
     return visible_N & (np.array(judge.answer("position", frames_NHW3)) == "center")
 
 
-class PartnerTask(Task):
-    """Base of the two-player tasks: a reward about the partner (the other player), from one ``source``.
+class JudgedTask(Task):
+    """Base of the tasks scored from one ``source``: ``"judge"`` (the shipped CNN judges read the frames: dream
+    and real env) or ``"truth"`` (the real env's ground truth answers the same question; ``requires_truth``,
+    the dream env refuses it).
 
     Args:
-        source: ``"judge"``: the CNN judges answer from each player's frames (dream and real env);
-            ``"truth"``: the real env's ground truth answers (``requires_truth``; the dream env refuses it).
+        source: ``"judge"`` or ``"truth"``.
         judge_dir: probe weights for ``source="judge"`` (None: the shipped ``solaris_env/assets/judges/``).
 
-    The thresholds (pixels that make a player "visible", the motion threshold) are the judges' labelling
-    rules (``solaris_env.judges.config.LabelConfig``), so the truth is what the probes were trained to answer.
+    The thresholds (pixels that make a player "visible", the motion threshold, the structure distance) are the
+    judges' labelling rules (``solaris_env.judges.config.LabelConfig``), so the truth is what the probes were
+    trained to answer.
     """
 
-    base_name = "partner"
+    base_name = "judged"
 
     def __init__(self, source: str = "judge", judge_dir: str | None = None):
         from solaris_env.judges.config import LabelConfig
@@ -233,11 +239,6 @@ class PartnerTask(Task):
     def judge(self):
         return shared_judge(self.judge_dir)
 
-    def reset(self, frames_PHW3: np.ndarray, truth: Sequence[Mapping] | None = None) -> None:
-        super().reset(frames_PHW3, truth)
-        if self.num_players != 2:
-            raise ValueError(f"task {self.name!r} is about one partner: it needs num_players=2, got {self.num_players}")
-
     def _truth(self, truth: Sequence[Mapping] | None) -> Sequence[Mapping]:
         if truth is None:
             raise ValueError(f"task {self.name!r} (source='truth') needs the engine's ground truth; in the dream "
@@ -245,6 +246,17 @@ class PartnerTask(Task):
         if len(truth) != self.num_players:
             raise ValueError(f"truth must hold one dict per player ({self.num_players}), got {len(truth)}")
         return truth
+
+
+class PartnerTask(JudgedTask):
+    """Base of the two-player tasks: a reward about the partner (the other player). See :class:`JudgedTask`."""
+
+    base_name = "partner"
+
+    def reset(self, frames_PHW3: np.ndarray, truth: Sequence[Mapping] | None = None) -> None:
+        super().reset(frames_PHW3, truth)
+        if self.num_players != 2:
+            raise ValueError(f"task {self.name!r} is about one partner: it needs num_players=2, got {self.num_players}")
 
     def _visible_truth(self, truth_player: Mapping) -> bool:
         return partner_screen(truth_player)["pixels"] >= self.labels.min_visible_pixels
@@ -333,16 +345,57 @@ class ApproachPartnerTask(PartnerTask):
         return distance_P, np.array([self._visible_truth(t) for t in truth])
 
 
+class BuildStructureTask(JudgedTask):
+    """Reward 1 for each step that ends with a structure the players built this episode on the player's screen
+    (within ``LabelConfig.structure_max_distance`` blocks), else 0: place blocks ahead, then keep them in view.
+
+    Judge: the ``structure`` probe says "yes" for the step's last frame. Truth: the blocks placed minus those
+    mined since ``reset`` (the real env's ``placed`` / ``mined`` infos, any player's) projected from the
+    player's pose (``judges.labels.structure_on_screen``, the probe's labelling rule; an ambiguous view, a
+    block only partly on screen, counts 0). In the flat worlds of the start states every raised block is a
+    built one, which is what the probe learned. Never terminates.
+    """
+
+    base_name = "build_structure"
+
+    def reset(self, frames_PHW3: np.ndarray, truth: Sequence[Mapping] | None = None) -> None:
+        super().reset(frames_PHW3, truth)
+        self._built: dict[tuple[int, int, int], None] = {}
+
+    def step(self, frames_PkHW3: np.ndarray, actions, truth=None) -> TaskStep:
+        p = frames_PkHW3.shape[0]
+        if self.source == "judge":
+            seen_P = np.array(self.judge.answer("structure", frames_PkHW3[:, -1])) == "yes"
+        else:
+            seen_P = self._seen_truth(self._truth(truth))
+        return TaskStep(seen_P.astype(np.float32), np.zeros(p, bool))
+
+    def _seen_truth(self, truth: Sequence[Mapping]) -> np.ndarray:
+        from solaris_env.judges.labels import structure_on_screen
+
+        for t in truth:  # this step's edits (x, y, z, block), every player's (placed before mined, as applied)
+            self._built.update((tuple(int(c) for c in cell[:3]), None) for cell in t.get("placed", ()))
+            for cell in t.get("mined", ()):
+                self._built.pop(tuple(int(c) for c in cell[:3]), None)
+        cells_N3 = np.asarray(list(self._built), np.float64).reshape(-1, 3)
+        seen = []
+        for t in truth:
+            eye_3 = np.asarray(t["pos"], np.float64) + np.array([0.0, self.labels.eye_height, 0.0])
+            seen.append(structure_on_screen(cells_N3, eye_3, float(t["yaw"]), float(t["pitch"]), self.labels) == "yes")
+        return np.array(seen)
+
+
 # ---------------------------------------------------------------------------------------------
 # Registry
 # ---------------------------------------------------------------------------------------------
 
 PARTNER_TASKS: dict[str, type[PartnerTask]] = {t.base_name: t for t in (FacePartnerTask, ApproachPartnerTask)}
+JUDGED_TASKS: dict[str, type[JudgedTask]] = {**PARTNER_TASKS, BuildStructureTask.base_name: BuildStructureTask}
 
 TASKS: dict[str, Callable[[], Task]] = {
     **{t.name: t for t in (NoTask, VisualNoveltyTask, SeeOtherPlayerTask)},
-    **{name: functools.partial(cls, source="judge") for name, cls in PARTNER_TASKS.items()},
-    **{f"{name}_truth": functools.partial(cls, source="truth") for name, cls in PARTNER_TASKS.items()},
+    **{name: functools.partial(cls, source="judge") for name, cls in JUDGED_TASKS.items()},
+    **{f"{name}_truth": functools.partial(cls, source="truth") for name, cls in JUDGED_TASKS.items()},
 }
 
 

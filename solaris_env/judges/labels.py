@@ -207,22 +207,27 @@ _CORNERS_83 = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1
 
 def structure_label(gt: Mapping, viewer: str, frame: int, cfg: LabelConfig = _DEFAULT) -> str | None:
     """Is a structure built during the episode visible on ``viewer``'s screen at ``frame``?
-
-    "yes" if a placed block's centre projects on screen within ``structure_max_distance`` of the eye,
-    "no" if no placed block has any corner on screen, else None. Occlusion is not modelled (the eval
-    worlds are flat, nothing stands between the players and the structure).
-    """
+    (:func:`structure_on_screen` of the episode's placed blocks from the viewer's pose.)"""
     cells = placed_blocks(gt, frame)
     if not cells:
         return "no"
-    eye, yaw, pitch = _pose(gt, viewer, frame, cfg)
-    cells_N3 = np.asarray(cells, np.float64)
-    u, v, _ = project(cells_N3 + 0.5, eye, yaw, pitch, cfg)
-    dist = np.linalg.norm(cells_N3 + 0.5 - eye, axis=-1)
+    return structure_on_screen(np.asarray(cells, np.float64), *_pose(gt, viewer, frame, cfg), cfg)
+
+
+def structure_on_screen(cells_N3: np.ndarray, eye_3: np.ndarray, yaw: float, pitch: float,
+                        cfg: LabelConfig = _DEFAULT) -> str | None:
+    """"yes" if a block's centre (cells are integer block corners) projects on screen within
+    ``structure_max_distance`` of the eye, "no" if no block has any corner on screen, else None. Occlusion is
+    not modelled (the eval worlds are flat, nothing stands between the players and the structure)."""
+    cells_N3 = np.asarray(cells_N3, np.float64).reshape(-1, 3)
+    if len(cells_N3) == 0:
+        return "no"
+    u, v, _ = project(cells_N3 + 0.5, eye_3, yaw, pitch, cfg)
+    dist = np.linalg.norm(cells_N3 + 0.5 - eye_3, axis=-1)
     if np.any(_on_screen(u, v) & (dist <= cfg.structure_max_distance)):
         return "yes"
     corners = (cells_N3[:, None, :] + _CORNERS_83[None]).reshape(-1, 3)
-    cu, cv, _ = project(corners, eye, yaw, pitch, cfg)
+    cu, cv, _ = project(corners, eye_3, yaw, pitch, cfg)
     return "no" if not np.any(_on_screen(cu, cv)) else None
 
 

@@ -7,6 +7,7 @@ import pytest
 from solaris_env.judges.config import ProbeConfig
 from solaris_env.spaces import noop
 from solaris_env.tasks import (
+    JUDGED_TASKS,
     PARTNER_TASKS,
     ApproachPartnerTask,
     FacePartnerTask,
@@ -83,7 +84,7 @@ def test_approach_partner_compares_with_the_frame_gap_steps_back():
 
 
 def test_registry_names_and_sources():
-    for name, cls in PARTNER_TASKS.items():
+    for name, cls in JUDGED_TASKS.items():
         judge, truth = make_task(name), make_task(f"{name}_truth")
         assert isinstance(judge, cls) and judge.source == "judge" and not judge.requires_truth and judge.name == name
         assert isinstance(truth, cls) and truth.source == "truth" and truth.requires_truth
@@ -110,7 +111,7 @@ def test_partner_tasks_need_two_players(players):
 def test_dream_env_runs_the_judge_tasks_and_refuses_the_truth_ones(model):
     from solaris_env.dream_env import DreamParallelEnv
 
-    for name in PARTNER_TASKS:
+    for name in JUDGED_TASKS:
         env = DreamParallelEnv(model=model, task=name, max_steps=4)
         env.reset(seed=0)
         for _ in range(4):
