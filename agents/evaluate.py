@@ -46,7 +46,7 @@ SPEARMAN_GOAL = 0.8
 
 @dataclass
 class Args:
-    task: str = arg("face_partner", "partner task (solaris_env.tasks.PARTNER_TASKS)")
+    task: str = arg("face_partner", "judged task (solaris_env.tasks.JUDGED_TASKS)")
     # arg() gives list defaults a default_factory (ruff's RUF009 cannot see through it)
     policies: list[str] = arg(DEFAULT_POLICIES, "policy specs (agents.policies.make_policy)")  # noqa: RUF009
     ppo_checkpoints: list[str] = arg([], "PPO checkpoints (.zip) or dirs of step_*.zip")  # noqa: RUF009
@@ -63,10 +63,10 @@ class Args:
     out: str = arg(str(RESULTS_DIR / "policy_eval.json"), "results JSON (the plot is written next to it as .png)")
 
     def __post_init__(self):
-        from solaris_env.tasks import PARTNER_TASKS
+        from solaris_env.tasks import JUDGED_TASKS
 
-        if self.task not in PARTNER_TASKS:
-            raise ValueError(f"task must be one of {sorted(PARTNER_TASKS)}, got {self.task!r}")
+        if self.task not in JUDGED_TASKS:
+            raise ValueError(f"task must be one of {sorted(JUDGED_TASKS)}, got {self.task!r}")
         if self.episodes < 1 or self.max_steps < 1:
             raise ValueError(f"episodes and max_steps must be >= 1, got {self.episodes}, {self.max_steps}")
 
@@ -101,9 +101,9 @@ def main(argv: list[str] | None = None) -> dict:
     # ---- envs ------------------------------------------------------------------------------
     from solaris_env.dream_env import DreamParallelEnv, build_model
     from solaris_env.real_env import RealParallelEnv
-    from solaris_env.tasks import PARTNER_TASKS
+    from solaris_env.tasks import JUDGED_TASKS
 
-    task_cls = PARTNER_TASKS[args.task]
+    task_cls = JUDGED_TASKS[args.task]
     model = build_model(args.checkpoint, args.preset, num_players=2)
     height, width, _ = model.frame_shape
     k = model.frames_per_step

@@ -25,7 +25,7 @@ from agents.common import arg, write_json_atomic
 class PPOArgs:
     """Arguments shared by the PPO scripts (each script adds its env's)."""
 
-    task: str = arg("face_partner", "partner task (solaris_env.tasks.PARTNER_TASKS): face_partner | approach_partner")
+    task: str = arg("face_partner", "judged task (solaris_env.tasks.JUDGED_TASKS): face_partner | approach_partner | build_structure")
     total_timesteps: int = arg(200_000, "learner steps to train for")
     seed: int = arg(1, "seed of PPO, the envs and the start-state draw")
     out: str | None = arg(None, "run directory (default runs/agents/<script>-<task>-s<seed>)")
@@ -48,10 +48,10 @@ class PPOArgs:
     torch_threads: int = arg(1, "torch CPU threads (small convs are fastest single-threaded on these VMs)")
 
     def __post_init__(self):
-        from solaris_env.tasks import PARTNER_TASKS
+        from solaris_env.tasks import JUDGED_TASKS
 
-        if self.task not in PARTNER_TASKS:
-            raise ValueError(f"task must be one of {sorted(PARTNER_TASKS)}, got {self.task!r}")
+        if self.task not in JUDGED_TASKS:
+            raise ValueError(f"task must be one of {sorted(JUDGED_TASKS)}, got {self.task!r}")
         if self.partner not in ("noop", "random"):
             raise ValueError(f"partner must be 'noop' or 'random' (both run in the dream), got {self.partner!r}")
         if self.world not in ("flat", "normal", "mixed"):

@@ -56,13 +56,13 @@ def make_env(args: Args, model, start_states: list):
     from stable_baselines3.common.vec_env import VecMonitor
 
     from solaris_env.spaces import FlatActionCodec
-    from solaris_env.tasks import PARTNER_TASKS
+    from solaris_env.tasks import JUDGED_TASKS
     from solaris_env.vector_env import DreamVectorEnv
     from solaris_env.wrappers.sb3 import SB3VecEnv
 
     worlds = DreamVectorEnv(
         args.num_worlds, model=model, num_players=2,
-        max_steps=args.max_steps, task=PARTNER_TASKS[args.task](source="judge"), start_states=start_states,
+        max_steps=args.max_steps, task=JUDGED_TASKS[args.task](source="judge"), start_states=start_states,
     )
     codec = FlatActionCodec(camera_bins=args.camera_bins, camera_max_deg=args.camera_max_deg, kind="multidiscrete")
     envs = SB3VecEnv(worlds, learners=[LEARNER], codec=codec, opponent=args.partner)

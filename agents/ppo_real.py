@@ -56,7 +56,7 @@ def make_env(args: Args, start_states: list):
     def thunk():
         from stable_baselines3.common.monitor import Monitor
 
-        from solaris_env.tasks import PARTNER_TASKS
+        from solaris_env.tasks import JUDGED_TASKS
         from solaris_env.wrappers.single_agent import make_real
 
         env = make_real(
@@ -64,7 +64,7 @@ def make_env(args: Args, start_states: list):
             flatten="multidiscrete", camera_bins=args.camera_bins, camera_max_deg=args.camera_max_deg,
             num_players=2, world=args.world, resolution=args.resolution, view_distance=args.view_distance,
             max_steps=args.max_steps, ticks_per_step=args.ticks_per_step,
-            task=PARTNER_TASKS[args.task](source="truth"),
+            task=JUDGED_TASKS[args.task](source="truth"),
         )
         env = StartFromStates(env, start_states)
         env = Monitor(env)  # episode returns for rollout/ep_rew_mean

@@ -37,7 +37,7 @@ from agents.stats import summarize
 class Args:
     dream_ppo: str = arg("", "dream-trained PPO: a step_*.zip checkpoint or its run directory (last checkpoint)")
     real_ppo: str = arg("", "real-trained PPO: a step_*.zip checkpoint or its run directory (last checkpoint)")
-    task: str = arg("face_partner", "partner task (solaris_env.tasks.PARTNER_TASKS)")
+    task: str = arg("face_partner", "judged task (solaris_env.tasks.JUDGED_TASKS)")
     references: list[str] = arg(["random", "bot:0"], "other policies to report (agents.policies specs)")  # noqa: RUF009
     episodes: int = arg(32, "episodes per policy (the same start states for all)")
     max_steps: int = arg(50, "episode length in env steps")
@@ -50,10 +50,10 @@ class Args:
     out: str | None = arg(None, "results JSON (default benchmarks/results/transfer_<task>.json)")
 
     def __post_init__(self):
-        from solaris_env.tasks import PARTNER_TASKS
+        from solaris_env.tasks import JUDGED_TASKS
 
-        if self.task not in PARTNER_TASKS:
-            raise ValueError(f"task must be one of {sorted(PARTNER_TASKS)}, got {self.task!r}")
+        if self.task not in JUDGED_TASKS:
+            raise ValueError(f"task must be one of {sorted(JUDGED_TASKS)}, got {self.task!r}")
         if not self.dream_ppo or not self.real_ppo:
             raise ValueError("give both --dream-ppo and --real-ppo (a checkpoint .zip or a run directory)")
 
@@ -73,7 +73,7 @@ def main(argv: list[str] | None = None) -> dict:
     args = parse_args(Args, argv, description=__doc__.split("\n\n")[0])
     t_start = time.perf_counter()
     from solaris_env.real_env import RealParallelEnv
-    from solaris_env.tasks import PARTNER_TASKS
+    from solaris_env.tasks import JUDGED_TASKS
 
     # ---- policies and the env --------------------------------------------------------------
     checkpoints = {"dream_ppo": last_checkpoint(args.dream_ppo), "real_ppo": last_checkpoint(args.real_ppo)}
@@ -88,7 +88,7 @@ def main(argv: list[str] | None = None) -> dict:
                              f"not --task {args.task!r}")
     (k,) = ticks
     env = RealParallelEnv(num_players=2, world=args.world, resolution=args.resolution, max_steps=args.max_steps,
-                          ticks_per_step=k, task=PARTNER_TASKS[args.task](source="truth"))
+                          ticks_per_step=k, task=JUDGED_TASKS[args.task](source="truth"))
     starts = make_start_states(args.episodes, args.start_seed, args.world, args.resolution)
     roles = {"dream_ppo": f"ppo:{checkpoints['dream_ppo']}", "real_ppo": f"ppo:{checkpoints['real_ppo']}",
              **{spec: spec for spec in args.references}}
