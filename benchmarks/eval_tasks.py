@@ -1,7 +1,7 @@
 """The paper's five-task world-model benchmark (Table 3): judge accuracy and a Fréchet distance per task.
 
     .venv/bin/solaris-engine collect --out data/eval_7001 --eval --episodes 16 --resolution 64 --seed 7001
-    .venv/bin/python -m benchmarks.eval_tasks --data data/eval_7001          # ~25 min on 2 shared CPU cores
+    .venv/bin/python -m benchmarks.eval_tasks --data data/eval_7001          # ~45 min on 2 CPU cores (3 seeds x 112 episodes)
 
 Data: the 7 eval sets of ``solaris-engine collect --eval`` (engine-spec §2.7, §6), collected at the
 model's resolution with a seed no training set used (training data: seeds 0.., held-out: 99; we use
