@@ -7,7 +7,8 @@ PPO and random (and the scripted engine bot as an upper reference), from the sam
 Every policy plays the learner (Alpha) for ``--episodes`` episodes in ``RealParallelEnv`` with the ground-truth
 reward (``<task>_truth``) and ``ticks_per_step`` = the policies' frames per step. Reported per policy: mean return
 and 95 % bootstrap CI (``agents.stats``); and the transfer ratio (dream PPO - random) / (real PPO - random): 1
-means training in the dream was as good as training in the engine. A run directory stands for its last
+means training in the dream was as good as training in the engine (reported only when the real PPO's CI lies
+above the random mean; otherwise null, with the reason in ``transfer_ratio_note``). A run directory stands for its last
 checkpoint. Writes ``--out`` (default ``benchmarks/results/transfer_<task>.json``) atomically.
 """
 
@@ -69,6 +70,18 @@ def last_checkpoint(path: str) -> Path:
     return found[-1]
 
 
+def transfer_ratio(rows: dict) -> tuple[float | None, str]:
+    """(dream PPO - random) / (real PPO - random) and why it is (not) defined: only when the real-trained
+    reference clearly learned something, its 95 % CI above the random mean (else the ratio is noise)."""
+    if "random" not in rows:
+        return None, "no random baseline"
+    random_mean = rows["random"]["mean"]
+    if rows["real_ppo"]["ci_low"] <= random_mean:
+        return None, "undefined: the real-trained PPO is not better than random (its 95 % CI reaches the random mean)"
+    ratio = (rows["dream_ppo"]["mean"] - random_mean) / (rows["real_ppo"]["mean"] - random_mean)
+    return ratio, "defined: the real PPO's 95 % CI lies above the random mean"
+
+
 def main(argv: list[str] | None = None) -> dict:
     args = parse_args(Args, argv, description=__doc__.split("\n\n")[0])
     t_start = time.perf_counter()
@@ -109,12 +122,9 @@ def main(argv: list[str] | None = None) -> dict:
               flush=True)
 
     # ---- report ----------------------------------------------------------------------------
-    random_mean = rows["random"]["mean"] if "random" in rows else None
-    ratio = None
-    if random_mean is not None and rows["real_ppo"]["mean"] != random_mean:
-        ratio = (rows["dream_ppo"]["mean"] - random_mean) / (rows["real_ppo"]["mean"] - random_mean)
+    ratio, note = transfer_ratio(rows)
     results = {
-        "task": args.task, "returns": rows, "transfer_ratio": ratio,
+        "task": args.task, "returns": rows, "transfer_ratio": ratio, "transfer_ratio_note": note,
         "setup": {"episodes": args.episodes, "max_steps": args.max_steps, "frames_per_step": k,
                   "resolution": args.resolution, "world": args.world, "partner": args.partner,
                   "start_seed": args.start_seed, "seed": args.seed},
@@ -124,7 +134,7 @@ def main(argv: list[str] | None = None) -> dict:
                              *(argv if argv is not None else sys.argv[1:])]),
     }
     out = write_json_atomic(args.out or RESULTS_DIR / f"transfer_{args.task}.json", results)
-    print(f"transfer ratio (dream PPO - random) / (real PPO - random) = {ratio}; wrote {out}", flush=True)
+    print(f"transfer ratio (dream PPO - random) / (real PPO - random) = {ratio} ({note}); wrote {out}", flush=True)
     return results
 
 

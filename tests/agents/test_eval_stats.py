@@ -83,3 +83,14 @@ def test_mmrv_is_invariant_to_monotone_proxy_transforms_and_weighs_by_real_gaps(
     real, proxy = rng.normal(size=8), rng.normal(size=8)
     assert stats.mmrv(real, proxy) == pytest.approx(stats.mmrv(real, np.exp(proxy)))
     assert stats.mmrv(2.0 * real, proxy) == pytest.approx(2.0 * stats.mmrv(real, proxy))
+
+
+def test_transfer_ratio_only_when_the_real_ppo_beats_random():
+    from agents.transfer import transfer_ratio
+
+    row = lambda mean, lo: {"mean": mean, "ci_low": lo}
+    ratio, note = transfer_ratio({"dream_ppo": row(6.0, 5.0), "real_ppo": row(10.0, 8.0), "random": row(2.0, 1.0)})
+    assert ratio == pytest.approx(0.5) and note.startswith("defined")
+    ratio, note = transfer_ratio({"dream_ppo": row(4.1, 3.3), "real_ppo": row(4.9, 3.3), "random": row(5.8, 2.3)})
+    assert ratio is None and "not better than random" in note  # the measured face_partner run: noise, not 1.9
+    assert transfer_ratio({"dream_ppo": row(1, 0), "real_ppo": row(2, 1)}) == (None, "no random baseline")
