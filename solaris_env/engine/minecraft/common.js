@@ -1,0 +1,82 @@
+// Helpers shared by the recorder (record.js) and the env bridge (env_bridge.js): a deterministic RNG,
+// angle helpers in Mineflayer's convention (yaw 0 = -Z, + = turn left; + pitch = up, radians), bot
+// creation and the first-person view (prismarine-viewer on headless-gl, which needs an X display).
+'use strict'
+global.THREE = require('three')
+global.Worker = require('worker_threads').Worker
+const mineflayer = require('mineflayer')
+const { createCanvas } = require('node-canvas-webgl/lib')
+const { Viewer, WorldView } = require('prismarine-viewer/viewer')
+
+const TICK_S = 0.05
+const EYE = 1.62
+const SNEAK_EYE = 1.27
+const BURST_DT_MS = 25 // a physics tick less than this after the previous one is a catch-up tick
+const CONTROL_KEYS = ['forward', 'back', 'left', 'right', 'jump', 'sprint', 'sneak']
+
+// Deterministic RNG (mulberry32 over a string hash): the same text gives the same draws on every bot.
+function rngFrom (text) {
+  let h = 1779033703 ^ text.length
+  for (let i = 0; i < text.length; i++) { h = Math.imul(h ^ text.charCodeAt(i), 3432918353); h = (h << 13) | (h >>> 19) }
+  let a = h >>> 0
+  return () => {
+    a = (a + 0x6D2B79F5) | 0
+    let t = Math.imul(a ^ (a >>> 15), 1 | a)
+    t = (t + Math.imul(t ^ (t >>> 7), 61 | t)) ^ t
+    return ((t ^ (t >>> 14)) >>> 0) / 4294967296
+  }
+}
+const xzDist = (a, b) => Math.hypot(a.x - b.x, a.z - b.z)
+const uniform = (rng, lo, hi) => lo + (hi - lo) * rng()
+function wrapPi (a) { a = (a + Math.PI) % (2 * Math.PI); if (a < 0) a += 2 * Math.PI; return a - Math.PI }
+function yawPitchTo (from, to) {
+  const dx = to.x - from.x; const dy = to.y - from.y; const dz = to.z - from.z
+  return [Math.atan2(-dx, -dz), Math.atan2(dy, Math.hypot(dx, dz))]
+}
+
+// A bot on cfg's server; kicks and errors call fail(message) (which should exit the process).
+function makeBot (cfg, name, fail, options = {}) {
+  const bot = mineflayer.createBot({ host: cfg.host, port: cfg.port, username: name, auth: 'offline', version: cfg.version, viewDistance: 'tiny', ...options })
+  bot.on('kicked', (reason) => fail(`${name} kicked: ${JSON.stringify(reason)}`))
+  bot.on('error', (err) => fail(`${name} error: ${err && err.stack ? err.stack : err}`))
+  return bot
+}
+
+// The bot's first-person view at cfg.renderWidth x cfg.renderHeight with a cfg.fovDeg vertical FOV.
+// render(pos, yaw, pitch, sneaking) sets the camera directly (no tween) and returns the RGBA pixels,
+// bottom row first (gl.readPixels); the returned buffer is reused by the next call.
+function makeView (cfg, bot) {
+  const w = cfg.renderWidth; const h = cfg.renderHeight
+  const canvas = createCanvas(w, h)
+  const renderer = new THREE.WebGLRenderer({ canvas })
+  const viewer = new Viewer(renderer)
+  if (!viewer.setVersion(cfg.version)) throw new Error(`prismarine-viewer does not support ${cfg.version}`)
+  viewer.camera.fov = cfg.fovDeg
+  viewer.camera.aspect = w / h
+  viewer.camera.updateProjectionMatrix()
+  const updateEntity = viewer.updateEntity.bind(viewer)
+  viewer.updateEntity = (e) => { delete e.username; updateEntity(e) } // name tags render as white boxes
+  const worldView = new WorldView(bot.world, cfg.viewDistance, bot.entity.position)
+  viewer.listen(worldView)
+  worldView.init(bot.entity.position)
+  worldView.listenToBot(bot)
+  bot.on('move', () => worldView.updatePosition(bot.entity.position))
+  const gl = renderer.getContext()
+  const pixels = new Uint8Array(w * h * 4)
+  return {
+    viewer,
+    worldView,
+    render (pos, yaw, pitch, sneaking) {
+      viewer.camera.position.set(pos.x, pos.y + (sneaking ? SNEAK_EYE : EYE), pos.z)
+      viewer.camera.rotation.set(pitch, yaw, 0, 'ZYX')
+      viewer.update()
+      renderer.render(viewer.scene, viewer.camera)
+      gl.readPixels(0, 0, w, h, gl.RGBA, gl.UNSIGNED_BYTE, pixels)
+      return pixels
+    }
+  }
+}
+
+module.exports = {
+  TICK_S, EYE, SNEAK_EYE, BURST_DT_MS, CONTROL_KEYS, rngFrom, xzDist, uniform, wrapPi, yawPitchTo, makeBot, makeView
+}

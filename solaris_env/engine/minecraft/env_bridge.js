@@ -1,0 +1,289 @@
+#!/usr/bin/env node
+// The env bridge: the players of RealParallelEnv(backend="minecraft") as mineflayer bots on a running
+// server (server.js), each with its first-person view rendered in this process by prismarine-viewer, stepped
+// in real time (20 Hz) on behalf of a Python client over one TCP connection on 127.0.0.1.
+//
+// Usage: node env_bridge.js '<json config>'
+//   config: {host, port, version, names, renderWidth, renderHeight, viewDistance, fovDeg, warmupMs}
+// Logs the bots in (one after the other), then listens on 127.0.0.1 (any free port) and prints one line
+// {"event":"ready","port":N} on stdout. Exits when the client sends close, when stdin closes (the supervisor
+// died) or on SIGTERM.
+//
+// Protocol: the client sends one JSON object per line; every request gets one JSON header line, followed
+// by `frameBytes` raw bytes when the header has them (the frames: bot by bot, frame by frame, RGBA
+// renderHeight x renderWidth x 4, bottom row first as gl.readPixels returns them).
+//   {"op":"reset","spots":[{x,y,z,yaw,pitch} per bot]}  -> teleport every bot to its block (x, y, z),
+//       face (yaw, pitch), release all keys; reply {op,tick,bots:[{poses:[pose]}],frameBytes} (one frame).
+//   {"op":"step","ticks":[[action per bot] per tick]}   -> play k = len(ticks) ticks; reply {op,k,tick,
+//       idleTicks,idleCatchup,catchup,dropped,lateMs,bots:[{poses:[pose per tick]}],frameBytes} (k frames/bot).
+//       action: {controls:{forward,back,left,right,jump,sprint,sneak}, dyaw, dpitch (radians, Mineflayer
+//       sign), attack (0/1), hotbar (null or 1..9)}.
+//   {"op":"close"}                                        -> reply {op:"closed"} and exit.
+//   Errors reply {op:"error",message}.
+// pose: {x,y,z,yaw,pitch,sneak,onGround,camera:[dyaw,dpitch] applied before this tick (actual, after
+//   Mineflayer's mouse quantisation),hit (a player was attacked),others:{name:[x,y,z] as this bot knows it}}.
+//
+// Ticks. One clock drives every bot: on each 20 Hz tick all bots run one step of Mineflayer's own
+// physics (prismarine-physics, the same call as mineflayer's physics plugin, whose loop is switched off
+// with physicsEnabled: false so that both bots tick together), then each bot's view is rendered: a frame is
+// always the state right after its tick's physics. A step's first action is applied as soon as the request
+// arrives (before the next tick's physics), action j+1 right after frame j is rendered. Between steps the
+// bots keep ticking in real time holding the last step's movement keys (no camera, no once-keys): those
+// are reported as idleTicks. A tick that runs more than BURST_DT_MS after its due time (the event loop was
+// busy) is a catch-up tick (counted in catchup / idleCatchup); after MAX_CATCHUP due ticks in one go the
+// clock skips ahead and the skipped ticks are reported as dropped (the game ran slower than real time).
+'use strict'
+const net = require('net')
+const { performance } = require('perf_hooks')
+const { Physics, PlayerState } = require('prismarine-physics')
+const common = require('./common')
+const { BURST_DT_MS, CONTROL_KEYS, xzDist } = common
+
+const cfg = Object.assign({
+  host: '127.0.0.1', port: 25565, version: '1.20.1', names: ['Alpha', 'Bravo'], renderWidth: 114,
+  renderHeight: 64, viewDistance: 4, fovDeg: 70, warmupMs: 3000
+}, JSON.parse(process.argv[2] || '{}'))
+
+const TICK_MS = 50
+const MAX_CATCHUP = 4 // due ticks run back to back at most (as mineflayer's physics loop)
+const REACH = 3.0 // survival attack reach
+const PITCH_LIMIT = Math.PI / 2
+const TELEPORT_TIMEOUT_MS = 20000
+
+function log (msg) { process.stderr.write(`[env_bridge] ${msg}\n`) }
+function fail (msg) { log(`FAILED: ${msg}`); process.exit(1) }
+const sleep = (ms) => new Promise(resolve => setTimeout(resolve, ms))
+
+const bots = []
+const views = []
+const physics = []
+let warmedUp = false
+let client = null
+
+// ---------------------------------------------------------------------------------------------
+// The game clock
+// ---------------------------------------------------------------------------------------------
+const clock = { t0: 0, n: 0, tick: 0 } // n: due ticks since t0; tick: ticks played since start
+let step = null // the step being played: {ticks, k, frames: [[Buffer]], poses: [[pose]], lateMs, catchup, ...}
+let pendingReset = null // resolve(frames, poses) at the next tick
+const idle = { ticks: 0, catchup: 0, dropped: 0 }
+
+function startClock () {
+  clock.t0 = performance.now()
+  setTimeout(onClock, TICK_MS)
+}
+
+function onClock () {
+  let ran = 0
+  while (performance.now() >= clock.t0 + (clock.n + 1) * TICK_MS) {
+    if (ran === MAX_CATCHUP) { // too far behind: skip ahead (reported), the game slows down
+      const now = performance.now()
+      const skipped = Math.floor((now - clock.t0) / TICK_MS) - clock.n
+      clock.n += skipped
+      if (step) step.dropped += skipped; else idle.dropped += skipped
+      break
+    }
+    clock.n++
+    ran++
+    const lateMs = performance.now() - (clock.t0 + clock.n * TICK_MS)
+    try { gameTick(lateMs) } catch (err) { fail(`tick ${clock.tick}: ${err && err.stack ? err.stack : err}`) }
+  }
+  setTimeout(onClock, Math.max(0, clock.t0 + (clock.n + 1) * TICK_MS - performance.now()))
+}
+
+function gameTick (lateMs) {
+  clock.tick++
+  for (let i = 0; i < bots.length; i++) {
+    const bot = bots[i]
+    if (bot.entity && bot.blockAt(bot.entity.position) != null) { // chunk loaded
+      physics[i].simulatePlayer(new PlayerState(bot, bot.controlState), physics[i].world).apply(bot)
+    }
+  }
+  bots.forEach(b => b.emit('physicsTick'))
+  const catchup = lateMs > BURST_DT_MS
+  if (pendingReset) {
+    const done = pendingReset
+    pendingReset = null
+    idle.ticks = idle.catchup = idle.dropped = 0
+    done(bots.map((b, i) => [renderFrame(i)]), bots.map((b, i) => [pose(i, [0, 0], false)]))
+  } else if (step) {
+    const f = step.frames[0].length // this tick's frame index
+    step.lateMs.push(Math.round(lateMs * 10) / 10)
+    if (catchup) step.catchup++
+    bots.forEach((b, i) => {
+      step.frames[i].push(renderFrame(i))
+      step.poses[i].push(pose(i, step.applied[i].camera, step.applied[i].hit))
+    })
+    if (f + 1 < step.k) applyTick(f + 1)
+    else finishStep()
+  } else {
+    idle.ticks++
+    if (catchup) idle.catchup++
+  }
+}
+
+function renderFrame (i) {
+  const bot = bots[i]
+  return Buffer.from(views[i].render(bot.entity.position, bot.entity.yaw, bot.entity.pitch, bot.getControlState('sneak')))
+}
+
+function pose (i, camera, hit) {
+  const bot = bots[i]; const p = bot.entity.position
+  const others = {}
+  for (const name of cfg.names) {
+    if (name === cfg.names[i]) continue
+    const e = bot.players[name] && bot.players[name].entity
+    others[name] = e ? [e.position.x, e.position.y, e.position.z] : null
+  }
+  return {
+    x: p.x, y: p.y, z: p.z, yaw: bot.entity.yaw, pitch: bot.entity.pitch, sneak: bot.getControlState('sneak'),
+    onGround: !!bot.entity.onGround, camera, hit, others
+  }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Actions
+// ---------------------------------------------------------------------------------------------
+function applyAction (i, act) {
+  const bot = bots[i]
+  for (const k of CONTROL_KEYS) bot.setControlState(k, !!(act.controls && act.controls[k]))
+  const yaw0 = bot.entity.yaw; const pitch0 = bot.entity.pitch
+  if (act.dyaw || act.dpitch) {
+    const pitch = Math.max(-PITCH_LIMIT, Math.min(PITCH_LIMIT, pitch0 + (act.dpitch || 0)))
+    bot.look(yaw0 + (act.dyaw || 0), pitch, true)
+  }
+  if (act.hotbar) bot.setQuickBarSlot(act.hotbar - 1)
+  let hit = false
+  if (act.attack) {
+    const target = bot.entityAtCursor(REACH)
+    if (target && target.type === 'player') { bot.attack(target); hit = true } else bot.swingArm()
+  }
+  return { camera: [bot.entity.yaw - yaw0, bot.entity.pitch - pitch0], hit }
+}
+
+function applyTick (j) {
+  step.applied = bots.map((b, i) => applyAction(i, step.ticks[j][i]))
+}
+
+function finishStep () {
+  const s = step
+  step = null
+  const frames = s.frames.flat()
+  const header = {
+    op: 'step', k: s.k, tick: clock.tick, idleTicks: s.idleTicks, idleCatchup: s.idleCatchup,
+    idleDropped: s.idleDropped, catchup: s.catchup, dropped: s.dropped, lateMs: s.lateMs,
+    bots: s.poses.map(poses => ({ poses })), frameBytes: frames.reduce((n, f) => n + f.length, 0)
+  }
+  reply(header, frames)
+}
+
+// ---------------------------------------------------------------------------------------------
+// Requests
+// ---------------------------------------------------------------------------------------------
+function reply (header, frames = []) {
+  if (!client) return
+  client.write(JSON.stringify(header) + '\n')
+  for (const f of frames) client.write(f)
+}
+
+function startStep (req) {
+  if (step || pendingReset) throw new Error('step requested while another request is in flight')
+  if (!Array.isArray(req.ticks) || req.ticks.length < 1) throw new Error('step needs ticks: a non-empty list')
+  for (const t of req.ticks) {
+    if (!Array.isArray(t) || t.length !== bots.length) throw new Error(`every tick needs one action per bot (${bots.length})`)
+  }
+  step = {
+    ticks: req.ticks, k: req.ticks.length, frames: bots.map(() => []), poses: bots.map(() => []), lateMs: [],
+    catchup: 0, dropped: 0, idleTicks: idle.ticks, idleCatchup: idle.catchup, idleDropped: idle.dropped
+  }
+  idle.ticks = idle.catchup = idle.dropped = 0
+  applyTick(0) // before the next tick's physics
+}
+
+async function reset (req) {
+  if (step || pendingReset) throw new Error('reset requested while another request is in flight')
+  const spots = req.spots
+  if (!Array.isArray(spots) || spots.length !== bots.length) throw new Error(`reset needs one spot per bot (${bots.length})`)
+  bots.forEach(b => { for (const k of CONTROL_KEYS) b.setControlState(k, false) })
+  bots.forEach((b, i) => b.chat(`/tp ${spots[i].x} ${spots[i].y} ${spots[i].z}`))
+  bots[0].chat('/time set 6000')
+  const at = (p, s) => xzDist(p, { x: s.x + 0.5, z: s.z + 0.5 }) < 0.1
+  const deadline = Date.now() + TELEPORT_TIMEOUT_MS
+  const settled = () => bots.every((b, i) => at(b.entity.position, spots[i]) && b.entity.onGround &&
+    cfg.names.every((name, j) => j === i || (b.players[name] && b.players[name].entity && at(b.players[name].entity.position, spots[j]))))
+  while (!settled()) {
+    if (Date.now() > deadline) {
+      throw new Error(`bots did not reach their spots / see each other within ${TELEPORT_TIMEOUT_MS} ms: ` +
+        JSON.stringify(bots.map((b, i) => ({ pos: b.entity.position, spot: spots[i], onGround: b.entity.onGround }))))
+    }
+    await sleep(50)
+  }
+  bots.forEach((b, i) => b.look(spots[i].yaw, spots[i].pitch, true))
+  if (!warmedUp) { // chunk meshing warm-up (~2.5 s before the first good frame)
+    await sleep(cfg.warmupMs)
+    await Promise.race([Promise.all(views.map(v => v.viewer.waitForChunksToRender())), sleep(10000)])
+    warmedUp = true
+  }
+  const [frames, poses] = await new Promise(resolve => { pendingReset = (f, p) => resolve([f, p]) })
+  const flat = frames.flat()
+  reply({ op: 'reset', tick: clock.tick, bots: poses.map(p => ({ poses: p })), frameBytes: flat.reduce((n, f) => n + f.length, 0) }, flat)
+}
+
+async function handle (req) {
+  try {
+    if (req.op === 'step') startStep(req)
+    else if (req.op === 'reset') await reset(req)
+    else if (req.op === 'close') { reply({ op: 'closed' }); bots.forEach(b => b.quit()); setTimeout(() => process.exit(0), 200) } else throw new Error(`unknown op ${JSON.stringify(req.op)}`)
+  } catch (err) {
+    reply({ op: 'error', message: err && err.message ? err.message : String(err) })
+  }
+}
+
+function serve () {
+  let queue = Promise.resolve()
+  const server = net.createServer((socket) => {
+    if (client) { socket.end(JSON.stringify({ op: 'error', message: 'one client at a time' }) + '\n'); return }
+    client = socket
+    socket.setNoDelay(true)
+    let buf = ''
+    socket.on('data', (chunk) => {
+      buf += chunk.toString('utf8')
+      let nl
+      while ((nl = buf.indexOf('\n')) >= 0) {
+        const line = buf.slice(0, nl); buf = buf.slice(nl + 1)
+        if (!line.trim()) continue
+        let req
+        try { req = JSON.parse(line) } catch (err) { reply({ op: 'error', message: `bad JSON: ${err.message}` }); continue }
+        queue = queue.then(() => handle(req))
+      }
+    })
+    socket.on('close', () => { client = null; process.exit(0) }) // the env is gone
+    socket.on('error', () => {})
+  })
+  server.listen(0, '127.0.0.1', () => {
+    process.stdout.write(JSON.stringify({ event: 'ready', port: server.address().port }) + '\n')
+  })
+}
+
+async function main () {
+  // One after the other: a player joining while the other is mid-login is not announced to it.
+  for (const name of cfg.names) {
+    const bot = common.makeBot(cfg, name, fail, { physicsEnabled: false }) // our clock runs the physics
+    await new Promise((resolve) => bot.once('spawn', resolve))
+    const world = { getBlock: (pos) => bot.blockAt(pos, false) }
+    const engine = Physics(bot.registry, world)
+    engine.world = world
+    bots.push(bot)
+    physics.push(engine)
+  }
+  bots.forEach(b => views.push(common.makeView(cfg, b)))
+  log(`${bots.length} bots spawned`)
+  startClock()
+  serve()
+}
+
+process.on('SIGTERM', () => process.exit(143))
+process.on('SIGINT', () => process.exit(130))
+process.stdin.on('end', () => process.exit(1)) // the supervisor died
+process.stdin.resume()
+main().catch(err => fail(err && err.stack ? err.stack : String(err)))
