@@ -1,0 +1,146 @@
+"""RealParallelEnv(backend="minecraft"): the real env on real Minecraft (skipped unless the backend is set up).
+
+Two games are started in this module (~15 s each with the chunk-meshing warm-up), one after the other."""
+
+import math
+import os
+import signal
+import threading
+import time
+
+import numpy as np
+import pytest
+from pettingzoo.test import parallel_api_test
+
+from solaris_env.engine.minecraft import setup_problem
+from solaris_env.engine.minecraft.records import EYE_HEIGHT, project_box
+from solaris_env.engine.minecraft.supervisor import _group_alive
+from solaris_env.real_env import RealParallelEnv
+from solaris_env.spaces import noop
+
+PROBLEM = setup_problem()
+pytestmark = pytest.mark.minecraft
+needs_minecraft = pytest.mark.skipif(PROBLEM is not None, reason=f"Minecraft backend not set up ({PROBLEM}); "
+                                                                 "run `solaris-engine setup-minecraft`")
+SIZE = 64
+
+
+def test_bad_backend_names_the_field_and_the_choices():
+    with pytest.raises(ValueError, match=r"backend must be one of \['voxel', 'minecraft'\], got 'unreal'"):
+        RealParallelEnv(backend="unreal")
+    assert type(RealParallelEnv()) is RealParallelEnv  # the default stays the voxel engine
+
+
+@needs_minecraft
+def test_unsupported_options_raise_clear_errors():
+    with pytest.raises(ValueError, match="hud"):
+        RealParallelEnv(backend="minecraft", hud=True)
+    with pytest.raises(ValueError, match="world"):
+        RealParallelEnv(backend="minecraft", world="normal")
+    env = RealParallelEnv(backend="minecraft")  # nothing is started before reset
+    assert env.bridge is None
+    with pytest.raises(NotImplementedError, match="engine_state"):
+        env.engine_state()
+    with pytest.raises(NotImplementedError, match="engine_state"):
+        env.reset(options={"engine_state": object()})
+    env.close()
+
+
+@pytest.fixture(scope="module")
+def env():
+    env = RealParallelEnv(backend="minecraft", resolution=SIZE, max_steps=15, task="see_other_player")
+    yield env
+    env.close()
+
+
+def _turn_to(info: dict, target: np.ndarray) -> np.ndarray:
+    """The MineRL camera [dpitch, dyaw] (degrees, + down / + right) that points a player's eyes at ``target``."""
+    eye = info["pos"] + [0.0, EYE_HEIGHT, 0.0]
+    d = target - eye
+    yaw = math.atan2(-d[0], -d[2])  # Mineflayer: yaw 0 = -Z, + = left
+    pitch = math.atan2(d[1], math.hypot(d[0], d[2]))
+    dyaw = (yaw - info["yaw"] + math.pi) % (2 * math.pi) - math.pi
+    return np.array([-math.degrees(pitch - info["pitch"]), -math.degrees(dyaw)], np.float32)
+
+
+def _step(env, cameras=None):
+    actions = {a: noop() for a in env.agents}
+    for a, cam in (cameras or {}).items():
+        actions[a]["camera"] = cam
+    return env.step(actions)
+
+
+@needs_minecraft
+@pytest.mark.timeout(300)
+def test_parallel_api(env):
+    parallel_api_test(env, num_cycles=20)  # 3 resets; 15 steps each until truncation
+    assert env.metadata["name"] == "solaris_real_minecraft_v0"
+
+
+@needs_minecraft
+@pytest.mark.timeout(300)
+def test_looking_at_the_other_player_shows_it(env):
+    obs, infos = env.reset(seed=3)
+    assert set(obs) == {"Alpha", "Bravo"} and obs["Alpha"].shape == (SIZE, SIZE, 3) and obs["Alpha"].dtype == np.uint8
+    assert infos["Alpha"]["sees"]["Bravo"] and infos["Bravo"]["sees"]["Alpha"]  # spawned facing each other
+    # Alpha turns away: the truth says Bravo is off screen
+    obs, rewards, _, _, infos = _step(env, {"Alpha": np.array([0.0, 180.0], np.float32)})
+    assert not infos["Alpha"]["sees"]["Bravo"] and infos["Bravo"]["sees"]["Alpha"]
+    assert rewards["Alpha"] == 0.0 and rewards["Bravo"] == 1.0  # see_other_player gets the truth
+    away = obs["Alpha"].astype(np.int16)
+    # ... and back, aiming at Bravo's chest from the poses in the infos
+    bravo = infos["Bravo"]["pos"] + [0.0, 1.0, 0.0]
+    _step(env, {"Alpha": _turn_to(infos["Alpha"], bravo)})
+    obs, rewards, _, _, infos = _step(env)  # let the viewer's 50 ms entity tween settle
+    a = infos["Alpha"]
+    assert a["sees"]["Bravo"] and abs(a["screen"]["Bravo"]["u"] - 0.5) < 0.05 and rewards["Alpha"] == 1.0
+    # where the pose-based ground truth puts Bravo, Alpha's frame shows something else than beside it and
+    # than the same pixels when Alpha looked away
+    feet = infos["Bravo"]["pos"]
+    u0, v0, u1, v1 = project_box(a["pos"] + [0.0, EYE_HEIGHT, 0.0], a["yaw"], a["pitch"], feet - [0.3, 0.0, 0.3],
+                                 feet + [0.3, 1.8, 0.3], 70.0, 16 / 9)
+    r0, r1 = int(v0 * SIZE), max(int(v0 * SIZE) + 1, int(math.ceil(v1 * SIZE)))
+    c0, c1 = int(u0 * SIZE), max(int(u0 * SIZE) + 1, int(math.ceil(u1 * SIZE)))
+    frame = obs["Alpha"].astype(np.int16)
+    patch = frame[r0:r1, c0:c1]
+    w = c1 - c0
+    beside = frame[r0:r1, c0 - 3 * w:c1 - 3 * w] if c0 - 3 * w >= 0 else frame[r0:r1, c0 + 3 * w:c1 + 3 * w]
+    assert np.abs(patch - beside).mean() > 10, "Alpha's view shows no player where the poses put Bravo"
+    assert np.abs(patch - away[r0:r1, c0:c1]).mean() > 10
+    assert infos["Alpha"]["action_record"]["camera"] == [0.0, 0.0]  # the last step did not turn
+
+
+@needs_minecraft
+@pytest.mark.timeout(300)
+def test_ticks_per_step_late_ticks_are_reported_and_close_leaves_no_processes():
+    env = RealParallelEnv(backend="minecraft", resolution=36, ticks_per_step=4)
+    try:
+        env.reset(seed=0)
+        pids = env.bridge.pids()
+        bridge_pid = env.bridge.bridge.pid
+        assert len(pids) == 3  # Xvfb, server, bridge
+        _step(env)
+        assert env.step_frames().shape == (2, 4, 36, 36, 3)
+        # a slow policy: the game kept ticking in real time, and the step says so
+        time.sleep(0.4)
+        _, _, _, _, infos = _step(env)
+        timing = infos["Alpha"]["timing"]
+        assert timing["idle_ticks"] >= 5 and not timing["realtime"], timing
+        assert len(timing["late_ms"]) == 4
+        # the bridge stalls mid-step (as under CPU load): the late ticks are caught up, beyond 4 dropped
+        stall = threading.Timer(0.05, lambda: (os.kill(bridge_pid, signal.SIGSTOP), time.sleep(0.5),
+                                               os.kill(bridge_pid, signal.SIGCONT)))
+        stall.start()
+        _, _, _, _, infos = _step(env)
+        stall.join()
+        timing = infos["Bravo"]["timing"]
+        assert timing["catchup_ticks"] >= 1 and max(timing["late_ms"]) > 100 and not timing["realtime"], timing
+        # ~10 ticks were due after the stall: 4 ran back to back, the rest were dropped (this step's, or the
+        # next step's when this one had its frames before the skip)
+        _, _, _, _, infos = _step(env)
+        assert timing["dropped_ticks"] + infos["Bravo"]["timing"]["dropped_ticks"] >= 1, (timing, infos["Bravo"])
+    finally:
+        env.close()
+    assert env.bridge is None
+    for pid in pids:
+        assert not _group_alive(pid), f"process group {pid} still alive after close()"
