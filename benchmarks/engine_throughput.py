@@ -17,6 +17,14 @@ Writes ``benchmarks/results/engine_throughput.json``:
   in the same process (so jit compilation of the main shape is excluded; ``collect_cold_*`` includes it).
 
 Targets: >= 500 frames/s batched at 64x64; collection >= 10x real time.
+
+    .venv/bin/python benchmarks/engine_throughput.py --backend minecraft [--quick]   # ~2.5 min (quick ~1 min)
+
+writes ``benchmarks/results/engine_throughput_minecraft.json`` instead (needs ``solaris-engine
+setup-minecraft``; one bot pair at a time): ``env`` = ``RealParallelEnv(backend="minecraft")`` at 64 and 128
+(env steps/s, frames/s, CPU cores per pair = CPU seconds of Node + server + Xvfb over wall time, Python's CPU,
+and how many steps kept real time) and ``recorder`` = ``record.js`` rotationEval episodes at 128x128.
+Real time caps both at 20 ticks/s = 40 frames/s per pair.
 """
 
 from __future__ import annotations
@@ -31,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.machine import machine_info
+from benchmarks.machine import machine_info, write_result
 
 from solaris_env.engine import cli
 from solaris_env.engine.bots.runner import EpisodeConfig, run_episode
@@ -110,35 +118,98 @@ def _proc_cpu_s(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def minecraft_rate(out: Path, quick: bool) -> None:
-    """One rotationEval pair (~350 ticks) recorded at 128x128 on real Minecraft: frames/s over both
-    bots, ticks/s, and CPU cores used by the recorder (both bots + views) and by the server."""
+MC_ENV_STEPS = 600  # 30 s of real time per resolution (--quick: 200)
+MC_ENV_RESOLUTIONS = (64, 128)  # --quick: 64 only
+
+
+def minecraft_env_rate(resolution: int, steps: int) -> dict:
+    """``RealParallelEnv(backend="minecraft")`` (one bot pair) stepped ``steps`` times (k = 1) by a random
+    policy answering at once: env steps/s, frames/s (both players), the step-timing counters, and CPU
+    cores used (process CPU time over wall time) by the bridge (Node: both bots + views), the server and
+    Xvfb together, and by this Python process (frame resampling, ground truth, the protocol)."""
+    import resource
+
+    import solaris_env
+
+    env = solaris_env.RealParallelEnv(backend="minecraft", resolution=resolution, max_steps=steps + 1)
+    try:
+        t0 = time.perf_counter()
+        env.reset(seed=0)
+        start_s = time.perf_counter() - t0
+        env.step({a: env.action_space(a).sample() for a in env.agents})  # the first step after reset idles
+        cpu0, py0 = env.bridge.cpu_seconds(), resource.getrusage(resource.RUSAGE_SELF)
+        t0 = time.perf_counter()
+        timings = []
+        for _ in range(steps):
+            _, _, _, _, infos = env.step({a: env.action_space(a).sample() for a in env.agents})
+            timings.append(infos["Alpha"]["timing"])
+        wall = time.perf_counter() - t0
+        cpu1, py1 = env.bridge.cpu_seconds(), resource.getrusage(resource.RUSAGE_SELF)
+        P = env.num_players
+    finally:
+        env.close()
+    by_proc = {name: round((cpu1[name] - cpu0[name]) / wall, 3) for name in cpu1}
+    py_cpu = (py1.ru_utime + py1.ru_stime) - (py0.ru_utime + py0.ru_stime)
+    return {"resolution": resolution, "players": P, "steps": steps, "wall_s": round(wall, 2),
+            "start_and_first_reset_s": round(start_s, 1),
+            "env_steps_per_s": round(steps / wall, 2), "frames_per_s": round(P * steps / wall, 1),
+            "cpu_cores_pair": round(sum(by_proc.values()), 3), "cpu_cores_by_process": by_proc,
+            "cpu_cores_python": round(py_cpu / wall, 3),
+            "realtime_steps_fraction": round(sum(t["realtime"] for t in timings) / steps, 3),
+            "idle_ticks": sum(t["idle_ticks"] for t in timings),
+            "catchup_ticks": sum(t["catchup_ticks"] + t["idle_catchup_ticks"] for t in timings),
+            "dropped_ticks": sum(t["dropped_ticks"] for t in timings),
+            "late_ms_max": max(max(t["late_ms"]) for t in timings)}
+
+
+def minecraft_recorder_rate(tmp: str, quick: bool) -> list[dict]:
+    """rotationEval episodes (~350 ticks) recorded at 128x128 by ``record.js``: frames/s over both bots,
+    and CPU cores used by the recorder (both bots + views), the server and Xvfb."""
     import resource
 
     from solaris_env.engine.minecraft.collect import MinecraftSession
     from solaris_env.engine.recorder import EpisodeKey
 
-    load_before = os.getloadavg()
-    with tempfile.TemporaryDirectory() as tmp, MinecraftSession() as session:
-        rows = []
+    rows = []
+    with MinecraftSession() as session:
         for ep in range(1 if quick else 2):
             cpu0 = resource.getrusage(resource.RUSAGE_CHILDREN)
-            srv0, t0 = _proc_cpu_s(session.server.pid), time.perf_counter()
+            srv0, xvfb0, t0 = _proc_cpu_s(session.server.pid), _proc_cpu_s(session.xvfb.pid), time.perf_counter()
             res = session.record(tmp, EpisodeKey(ep, 0, eval_type="rotationEval"), "rotationEval", 0, 128, 128)
             wall = time.perf_counter() - t0
             cpu1 = resource.getrusage(resource.RUSAGE_CHILDREN)
             rec_cpu = (cpu1.ru_utime + cpu1.ru_stime) - (cpu0.ru_utime + cpu0.ru_stime)
+            cores = {"recorder": rec_cpu / wall, "server": (_proc_cpu_s(session.server.pid) - srv0) / wall,
+                     "Xvfb": (_proc_cpu_s(session.xvfb.pid) - xvfb0) / wall}
             rows.append({"ticks": res["ticks"], "wall_s": round(wall, 2), "catchup_ticks": res["catchup_ticks"],
                          "frames_per_s": round(2 * res["ticks"] / wall, 1),
-                         "recorder_cpu_cores": round(rec_cpu / wall, 3),
-                         "server_cpu_cores": round((_proc_cpu_s(session.server.pid) - srv0) / wall, 3)})
-    result = {"backend": "minecraft", "episodes": rows,
-              "note": "wall_s includes bot login, teleport and ~3 s of chunk-meshing warm-up per episode",
-              "machine": machine_info(load_before)}
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(result, indent=2) + "\n")
-    print(json.dumps(rows, indent=2))
-    print(f"wrote {out}")
+                         "cpu_cores_pair": round(sum(cores.values()), 3),
+                         "cpu_cores_by_process": {k: round(v, 3) for k, v in cores.items()}})
+    return rows
+
+
+def minecraft_rate(out: Path, quick: bool) -> None:
+    """The real-Minecraft backend, one bot pair at a time: the env (real-time steps) and the recorder."""
+    load_before = os.getloadavg()
+    env_rows = [minecraft_env_rate(r, 200 if quick else MC_ENV_STEPS)
+                for r in (MC_ENV_RESOLUTIONS[:1] if quick else MC_ENV_RESOLUTIONS)]
+    with tempfile.TemporaryDirectory() as tmp:
+        rec_rows = minecraft_recorder_rate(tmp, quick)
+    result = {
+        "backend": "minecraft",
+        "env": env_rows,
+        "recorder": rec_rows,
+        "notes": {
+            "env": "RealParallelEnv(backend='minecraft'), k=1, random actions; wall time of the timed steps only "
+                   "(after start-up, the first reset and one step); real time caps it at 20 steps/s and "
+                   "40 frames/s per pair; cpu_cores_pair = CPU seconds of env_bridge (Node) + server + Xvfb / wall",
+            "recorder": "wall_s includes bot login, teleport and ~3 s of chunk-meshing warm-up per episode; "
+                        "cpu_cores_pair = CPU seconds of record.js + server + Xvfb / wall",
+        },
+        "machine": machine_info(load_before),
+    }
+    write_result(out, result)
+    print(json.dumps({"env": env_rows, "recorder": rec_rows}, indent=2))
 
 
 def main() -> None:
@@ -146,7 +217,8 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="fewer timed calls and episodes")
     parser.add_argument("--out", type=Path, default=None)
     parser.add_argument("--backend", choices=("voxel", "minecraft"), default="voxel",
-                        help="minecraft: frames/s and CPU per bot pair of the real-Minecraft recorder")
+                        help="minecraft: env steps/s, frames/s and CPU per bot pair of the real-Minecraft env and "
+                             "recorder (benchmarks/results/engine_throughput_minecraft.json)")
     args = parser.parse_args()
     if args.backend == "minecraft":
         return minecraft_rate(args.out or RESULTS.with_name("engine_throughput_minecraft.json"), args.quick)
