@@ -77,6 +77,22 @@ def test_parallel_api(env):
     assert env.metadata["name"] == "solaris_real_minecraft_v0"
 
 
+def _truth_box(viewer: dict, other_feet: np.ndarray) -> tuple[slice, slice]:
+    """Rows and columns of the frame covered by the other player's hitbox, projected from the poses."""
+    u0, v0, u1, v1 = project_box(viewer["pos"] + [0.0, EYE_HEIGHT, 0.0], viewer["yaw"], viewer["pitch"],
+                                 other_feet - [0.3, 0.0, 0.3], other_feet + [0.3, 1.8, 0.3], 70.0, 16 / 9)
+    r0, c0 = int(v0 * SIZE), int(u0 * SIZE)
+    return slice(r0, max(r0 + 1, math.ceil(v1 * SIZE))), slice(c0, max(c0 + 1, math.ceil(u1 * SIZE)))
+
+
+def _contrast(frame: np.ndarray, rows: slice, cols: slice, right: bool = False) -> float:
+    """Mean |difference| between the box and the same rows 3 box widths beside it (left when it fits)."""
+    f = frame.astype(np.int16)
+    w = cols.stop - cols.start
+    shift = -3 * w if cols.start - 3 * w >= 0 and not right else 3 * w
+    return float(np.abs(f[rows, cols] - f[rows, cols.start + shift:cols.stop + shift]).mean())
+
+
 @needs_minecraft
 @pytest.mark.timeout(300)
 def test_looking_at_the_other_player_shows_it(env):
@@ -87,27 +103,28 @@ def test_looking_at_the_other_player_shows_it(env):
     obs, rewards, _, _, infos = _step(env, {"Alpha": np.array([0.0, 180.0], np.float32)})
     assert not infos["Alpha"]["sees"]["Bravo"] and infos["Bravo"]["sees"]["Alpha"]
     assert rewards["Alpha"] == 0.0 and rewards["Bravo"] == 1.0  # see_other_player gets the truth
-    away = obs["Alpha"].astype(np.int16)
+    away = obs["Alpha"]
     # ... and back, aiming at Bravo's chest from the poses in the infos
-    bravo = infos["Bravo"]["pos"] + [0.0, 1.0, 0.0]
-    _step(env, {"Alpha": _turn_to(infos["Alpha"], bravo)})
+    bravo = infos["Bravo"]["pos"]
+    _step(env, {"Alpha": _turn_to(infos["Alpha"], bravo + [0.0, 1.0, 0.0])})
     obs, rewards, _, _, infos = _step(env)  # let the viewer's 50 ms entity tween settle
     a = infos["Alpha"]
     assert a["sees"]["Bravo"] and abs(a["screen"]["Bravo"]["u"] - 0.5) < 0.05 and rewards["Alpha"] == 1.0
+    assert infos["Alpha"]["action_record"]["camera"] == [0.0, 0.0]  # the last step did not turn
     # where the pose-based ground truth puts Bravo, Alpha's frame shows something else than beside it and
     # than the same pixels when Alpha looked away
-    feet = infos["Bravo"]["pos"]
-    u0, v0, u1, v1 = project_box(a["pos"] + [0.0, EYE_HEIGHT, 0.0], a["yaw"], a["pitch"], feet - [0.3, 0.0, 0.3],
-                                 feet + [0.3, 1.8, 0.3], 70.0, 16 / 9)
-    r0, r1 = int(v0 * SIZE), max(int(v0 * SIZE) + 1, int(math.ceil(v1 * SIZE)))
-    c0, c1 = int(u0 * SIZE), max(int(u0 * SIZE) + 1, int(math.ceil(u1 * SIZE)))
-    frame = obs["Alpha"].astype(np.int16)
-    patch = frame[r0:r1, c0:c1]
-    w = c1 - c0
-    beside = frame[r0:r1, c0 - 3 * w:c1 - 3 * w] if c0 - 3 * w >= 0 else frame[r0:r1, c0 + 3 * w:c1 + 3 * w]
-    assert np.abs(patch - beside).mean() > 10, "Alpha's view shows no player where the poses put Bravo"
-    assert np.abs(patch - away[r0:r1, c0:c1]).mean() > 10
-    assert infos["Alpha"]["action_record"]["camera"] == [0.0, 0.0]  # the last step did not turn
+    rows, cols = _truth_box(a, infos["Bravo"]["pos"])
+    assert _contrast(obs["Alpha"], rows, cols) > 10, "Alpha's view shows no player where the poses put Bravo"
+    assert np.abs(obs["Alpha"][rows, cols].astype(np.int16) - away[rows, cols]).mean() > 10
+    # alignment: a 25 degree turn right shows Bravo left of centre in that very step's frame, where the truth
+    # (from the pose reported with the frame) puts it; a frame one tick behind would still show it centred
+    obs, _, _, _, infos = _step(env, {"Alpha": np.array([0.0, 25.0], np.float32)})
+    a = infos["Alpha"]
+    assert a["screen"]["Bravo"]["u"] < 0.4 and a["action_record"]["camera"][0] == pytest.approx(-math.radians(25), abs=0.01)
+    rows, cols = _truth_box(a, infos["Bravo"]["pos"])
+    assert _contrast(obs["Alpha"], rows, cols) > 10, "the frame does not show Bravo where this step's pose puts it"
+    centre = slice(SIZE // 2 - (cols.stop - cols.start) // 2, SIZE // 2 + (cols.stop - cols.start + 1) // 2)
+    assert _contrast(obs["Alpha"], rows, centre, right=True) < _contrast(obs["Alpha"], rows, cols) / 2
 
 
 @needs_minecraft
