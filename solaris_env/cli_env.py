@@ -27,7 +27,10 @@ def _add_env_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--preset", choices=("tiny", "test", "solaris"), help="dream: a RANDOM-INIT preset instead")
     p.add_argument("--players", type=int, default=2, help="number of players")
     p.add_argument("--resolution", type=int, default=64, help="real: frame size (square)")
-    p.add_argument("--world", choices=("flat", "normal", "mixed"), default="mixed", help="real: world kind")
+    p.add_argument("--world", choices=("flat", "normal", "mixed"), default=None,
+                   help="real: world kind (default: mixed; the minecraft backend has only flat)")
+    p.add_argument("--backend", choices=("voxel", "minecraft"), default="voxel",
+                   help="real: the voxel engine or real Minecraft in real time (`solaris-engine setup-minecraft`)")
     p.add_argument("--task", default=None, help="task name (solaris_env.tasks.TASKS); default: zero reward")
     p.add_argument("--seed", type=int, default=0, help="reset seed")
 
@@ -40,8 +43,9 @@ def _make_env(args, max_steps: int, render_mode: str | None = None):
                                 max_steps=max_steps, task=args.task, render_mode=render_mode)
     from solaris_env.real_env import RealParallelEnv
 
-    return RealParallelEnv(num_players=args.players, world=args.world, resolution=args.resolution,
-                           max_steps=max_steps, task=args.task, render_mode=render_mode)
+    world = args.world or ("flat" if args.backend == "minecraft" else "mixed")
+    return RealParallelEnv(num_players=args.players, world=world, resolution=args.resolution, max_steps=max_steps,
+                           task=args.task, render_mode=render_mode, backend=args.backend)
 
 
 def _opponents(env, policy: str, seed: int) -> dict:

@@ -17,6 +17,7 @@ from gymnasium.utils import seeding
 
 from solaris_env.engine.minecraft.collect import frames_from_rgba, render_size
 from solaris_env.engine.minecraft.records import (
+    CONTROL_KEYS,
     EYE_HEIGHT,
     PLAYER_HALF_WIDTH,
     PLAYER_HEIGHT,
@@ -241,6 +242,6 @@ class MinecraftParallelEnv(RealParallelEnv):
         dyaw, dpitch = pose["camera"]
         pressed = [k for k in range(1, 10) if action[f"hotbar.{k}"]]
         row = {"t": 0, "yaw": 0.0, "pitch": 0.0, "yaw_next": dyaw, "pitch_next": dpitch,
-               "controls": {k: bool(action[k]) for k in ("forward", "back", "left", "right", "jump", "sprint", "sneak")},
+               "controls": {k: bool(action[k]) for k in CONTROL_KEYS},
                "events": {"attack": int(pose["hit"]), "hotbar": pressed[0] if pressed else None}}
         return action_record(row)

@@ -96,8 +96,9 @@ class ScriptedBotOpponent(Opponent):
 
         game = getattr(env, "game", None)
         if game is None:
-            raise ValueError("the 'bot' opponent reads the engine's game state: it needs the real env "
-                             "(RealParallelEnv), not the dream env; use 'random', 'noop' or a PolicyOpponent")
+            raise ValueError("the 'bot' opponent reads the voxel engine's game state: it needs the real env "
+                             "(RealParallelEnv, backend='voxel'), not the dream env or the minecraft backend; "
+                             "use 'random', 'noop' or a PolicyOpponent")
         index = [p.name for p in game.players].index(agent)
         rng = np.random.default_rng(seed)
         self._bot = Bot(game, index, np.random.default_rng(rng.integers(2**31)), rng)

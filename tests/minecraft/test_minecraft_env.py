@@ -120,7 +120,8 @@ def test_looking_at_the_other_player_shows_it(env):
     # (from the pose reported with the frame) puts it; a frame one tick behind would still show it centred
     obs, _, _, _, infos = _step(env, {"Alpha": np.array([0.0, 25.0], np.float32)})
     a = infos["Alpha"]
-    assert a["screen"]["Bravo"]["u"] < 0.4 and a["action_record"]["camera"][0] == pytest.approx(-math.radians(25), abs=0.01)
+    assert a["screen"]["Bravo"]["u"] < 0.4
+    assert a["action_record"]["camera"][0] == pytest.approx(-math.radians(25), abs=0.01)
     rows, cols = _truth_box(a, infos["Bravo"]["pos"])
     assert _contrast(obs["Alpha"], rows, cols) > 10, "the frame does not show Bravo where this step's pose puts it"
     centre = slice(SIZE // 2 - (cols.stop - cols.start) // 2, SIZE // 2 + (cols.stop - cols.start + 1) // 2)
