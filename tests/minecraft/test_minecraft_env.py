@@ -162,3 +162,25 @@ def test_ticks_per_step_late_ticks_are_reported_and_close_leaves_no_processes():
     assert env.bridge is None
     for pid in pids:
         assert not _group_alive(pid), f"process group {pid} still alive after close()"
+
+
+@needs_minecraft
+@pytest.mark.timeout(300)
+def test_attack_hits_the_player_in_reach():
+    env = RealParallelEnv(backend="minecraft", resolution=36, spawn_distance=(1.5, 2.0))
+    try:
+        _, infos = env.reset(seed=0)
+        _step(env, {"Alpha": _turn_to(infos["Alpha"], infos["Bravo"]["pos"] + [0.0, 1.0, 0.0])})
+        before = infos["Bravo"]["pos"]
+        attack = noop()
+        attack["attack"] = 1
+        _, _, _, _, infos = env.step({"Alpha": attack, "Bravo": noop()})
+        assert infos["Alpha"]["action_record"]["attack"]  # hit a player (not just a swing)
+        for _ in range(10):
+            _, _, _, _, infos = _step(env)
+        pushed = infos["Bravo"]["pos"] - before
+        away = before - infos["Alpha"]["pos"]
+        assert np.all(np.isfinite(infos["Bravo"]["pos"]))
+        assert pushed @ away / np.linalg.norm(away) > 0.5, "the hit player was not knocked back"
+    finally:
+        env.close()
