@@ -29,14 +29,21 @@ from solaris_env.engine.minecraft.records import (
 )
 from solaris_env.engine.minecraft.supervisor import ProcessError, Supervisor, start_xvfb
 
-TRAINING_TYPES = ("walkLook",)  # implemented in record.js
-EVAL_TYPES = ("rotationEval", "oneLooksAwayEval", "bothLookAwayEval")
+# Implemented in episodes.js (the voxel engine's buildHouse, collector, pve and towerBridge are not).
+TRAINING_TYPES = ("buildStructure", "buildTower", "chase", "mine", "orbit", "placeAndMine", "pvp",
+                  "straightLineWalk", "walkLook", "walkLookAway")
+EVAL_TYPES = ("bothLookAwayEval", "oneLooksAwayEval", "rotationEval", "structureEval", "translationEval",
+              "turnToLookEval", "turnToLookOppositeEval")
 DISPLAY_ASPECT = 16 / 9
 FOV_DEG = 70.0
 SERVER_READY_S = 60.0
-# spawn distances (engine-spec §5.1 default 10-15; eval types 10-12)
-SPAWN = {"walkLook": (10.0, 15.0), "rotationEval": (10.0, 12.0), "oneLooksAwayEval": (10.0, 12.0),
-         "bothLookAwayEval": (10.0, 12.0)}
+DEFAULT_SPAWN = (10.0, 15.0)  # engine-spec §4: MIN/MAX_BOTS_DISTANCE
+# Spawn distances where the spec's differ from the default (§5.1 table, §6); placeAndMine and turnToLook*
+# place the bots 4 blocks apart themselves (episodes.js planEpisode).
+SPAWN = {"buildStructure": (8.0, 15.0), "buildTower": (8.0, 15.0), "pvp": (8.0, 15.0), "placeAndMine": (4.0, 4.0),
+         "rotationEval": (10.0, 12.0), "translationEval": (10.0, 12.0), "oneLooksAwayEval": (10.0, 12.0),
+         "bothLookAwayEval": (10.0, 12.0), "structureEval": (6.0, 6.0), "turnToLookEval": (4.0, 4.0),
+         "turnToLookOppositeEval": (4.0, 4.0)}
 EPISODE_TIMEOUT_S = 400.0
 MAX_TICKS = 180 * 20
 
@@ -94,16 +101,30 @@ class MinecraftSession:
         if problem:
             raise RuntimeError(f"the Minecraft backend is not set up: {problem}")
         self.sup = Supervisor()
+        self.seed, self.view_distance = seed, view_distance
+        self.server = None
+        self.world_used = False  # an episode ran on this server's world (blocks may be placed or dug)
         try:
             self.xvfb, self.display = start_xvfb(self.sup)
-            cfg = {"port": 0, "version": MINECRAFT_VERSION, "viewDistance": view_distance, "seed": seed}
-            self.server = self.sup.start("server", ["node", "server.js", json.dumps(cfg)], cwd=str(NODE_DIR))
-            line = self.sup.read_line(self.server, SERVER_READY_S, lambda s: s.startswith("{"))
-            self.port = int(json.loads(line)["port"])
+            self._start_server()
         except BaseException:
             self.sup.close()
             raise
-        self.view_distance = view_distance
+
+    def _start_server(self) -> None:
+        cfg = {"port": 0, "version": MINECRAFT_VERSION, "viewDistance": self.view_distance, "seed": self.seed}
+        self.server = self.sup.start("server", ["node", "server.js", json.dumps(cfg)], cwd=str(NODE_DIR))
+        line = self.sup.read_line(self.server, SERVER_READY_S, lambda s: s.startswith("{"))
+        self.port = int(json.loads(line)["port"])
+        self.world_used = False
+
+    def fresh_world(self) -> None:
+        """Restart the server (~1 s) so the next episode starts on an untouched flat world: far teleports
+        strand bots in unloaded chunks, so every episode plays near the origin."""
+        if self.server is not None:
+            self.sup.stop(self.server)
+            self.sup.children.remove(self.server)
+        self._start_server()
 
     def __enter__(self) -> Self:
         return self
@@ -117,10 +138,11 @@ class MinecraftSession:
     def run_recorder(self, scratch: Path, episode_type: str, episode: int, seed: int, height: int,
                      timeout_s: float = EPISODE_TIMEOUT_S, max_ticks: int = MAX_TICKS) -> dict:
         """Run record.js into ``scratch``; returns episode.json's content."""
-        if not self.server.alive():
-            raise ProcessError(f"the server died; stderr:\n{self.server.tail()}")
+        if self.world_used or not self.server.alive():
+            self.fresh_world()
+        self.world_used = True
         rh, rw = render_size(height, height)
-        lo, hi = SPAWN.get(episode_type, (10.0, 15.0))
+        lo, hi = SPAWN.get(episode_type, DEFAULT_SPAWN)
         cfg = {"host": "127.0.0.1", "port": self.port, "version": MINECRAFT_VERSION, "names": ["Alpha", "Bravo"],
                "episodeType": episode_type, "episode": episode, "seed": seed, "renderWidth": rw, "renderHeight": rh,
                "viewDistance": self.view_distance, "spawnMin": lo, "spawnMax": hi, "maxTicks": max_ticks,

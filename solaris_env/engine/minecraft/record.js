@@ -33,12 +33,9 @@ const TICK_S = 0.05
 const EYE = 1.62
 const SNEAK_EYE = 1.27
 const BURST_DT_MS = 25 // a physicsTick less than this after the previous one is a catch-up tick
-const MOVE_KEYS = ['forward', 'back', 'left', 'right']
-const REVERSE = { forward: 'back', back: 'forward', left: 'right', right: 'left' }
 const CONTROL_KEYS = ['forward', 'back', 'left', 'right', 'jump', 'sprint', 'sneak']
-const EVAL_DPS = 171.8873 // 3 rad/s
-const CAMERA_DPS = 60
-const EPISODE_MIN_TICKS = 300
+const PRE_ROLL_TICKS = 20 // the reference sleeps 1 s after recording starts
+const SURFACE_Y = 5 // feet height on server.js's superflat world
 
 function log (msg) { process.stderr.write(`[record] ${msg}\n`) }
 function fail (msg) { log(`FAILED: ${msg}`); process.exit(1) }
@@ -61,120 +58,8 @@ function rngFrom (text) {
 const xzDist = (a, b) => Math.hypot(a.x - b.x, a.z - b.z)
 const uniform = (rng, lo, hi) => lo + (hi - lo) * rng()
 
-// ---------------------------------------------------------------------------------------------
-// Choreography primitives: generators yielding one intent per tick ({controls, yaw, pitch} or {barrier})
-// ---------------------------------------------------------------------------------------------
-function wrapPi (a) { a = (a + Math.PI) % (2 * Math.PI); if (a < 0) a += 2 * Math.PI; return a - Math.PI }
-function yawPitchTo (from, to) {
-  const dx = to.x - from.x; const dy = to.y - from.y; const dz = to.z - from.z
-  return [Math.atan2(-dx, -dz), Math.atan2(dy, Math.hypot(dx, dz))]
-}
-
-function * idle (ctx, n, controls = {}) {
-  for (let i = 0; i < n; i++) yield { controls }
-}
-function * look (ctx, yaw, pitch, dps) {
-  const step = (dps * Math.PI / 180) * TICK_S
-  for (let i = 0; i < 400; i++) {
-    const dyaw = wrapPi(yaw - ctx.yaw); const dpitch = pitch - ctx.pitch
-    if (Math.abs(dyaw) < 1e-4 && Math.abs(dpitch) < 1e-4) return
-    const n = Math.max(Math.abs(dyaw), Math.abs(dpitch)) / step
-    const f = n <= 1 ? 1 : 1 / n
-    yield { controls: {}, yaw: ctx.yaw + dyaw * f, pitch: ctx.pitch + dpitch * f }
-  }
-}
-function * lookAtOther (ctx, dps) {
-  const o = ctx.otherPos()
-  if (!o) throw new Error(`${ctx.name} does not see the other player`)
-  const [yaw, pitch] = yawPitchTo(ctx.bot.entity.position, o)
-  yield * look(ctx, yaw, pitch, dps)
-}
-function * walk (ctx, key, dist, timeoutTicks = 100) {
-  const start = ctx.bot.entity.position.clone()
-  for (let i = 0; i < timeoutTicks; i++) {
-    if (xzDist(ctx.bot.entity.position, start) >= dist) return
-    yield { controls: { [key]: true } }
-  }
-}
-function * walkBack (ctx, key, start, tol = 1.0, timeoutTicks = 100) {
-  for (let i = 0; i < timeoutTicks; i++) {
-    if (xzDist(ctx.bot.entity.position, start) <= tol) return
-    yield { controls: { [key]: true } }
-  }
-}
-function * sneakSignal (ctx) {
-  yield * idle(ctx, 5, { sneak: true })
-  yield * idle(ctx, 25)
-  ctx.startTick = ctx.tick
-}
-function * padTo (ctx, n) {
-  yield * idle(ctx, ctx.startTick + n - ctx.tick)
-}
-function * barrier (ctx, name) { yield { barrier: name } }
-
-// ---------------------------------------------------------------------------------------------
-// Episode types (engine-spec §5.2, §6)
-// ---------------------------------------------------------------------------------------------
-function * randomWalk (ctx) {
-  yield * idle(ctx, Math.round(uniform(ctx.rng, 0.2, 0.5) / TICK_S))
-  const key = MOVE_KEYS[Math.floor(ctx.rng() * 4)]
-  const start = ctx.bot.entity.position.clone()
-  yield * walk(ctx, key, uniform(ctx.rng, 3, 4))
-  if (ctx.rng() < 0.25) yield * idle(ctx, Math.round(uniform(ctx.rng, 1, 3) / TICK_S), { jump: true })
-  yield * walkBack(ctx, REVERSE[key], start)
-  if (ctx.rng() < 0.25) yield * idle(ctx, Math.round(uniform(ctx.rng, 1, 3) / TICK_S), { jump: true })
-}
-
-const EPISODES = {
-  * walkLook (ctx) {
-    for (let it = 0; it < 3; it++) {
-      yield * barrier(ctx, `walkLook_${it}`)
-      const actionCount = 2 + Math.floor(ctx.shared() * 3)
-      const mode = ['both_bots_walk', 'lower_name_walks', 'bigger_name_walks'][Math.floor(ctx.shared() * 3)]
-      yield * lookAtOther(ctx, CAMERA_DPS)
-      const walks = mode === 'both_bots_walk' || ((mode === 'lower_name_walks') === ctx.isLower)
-      if (walks) for (let k = 0; k < actionCount; k++) yield * randomWalk(ctx)
-    }
-  },
-  * rotationEval (ctx) {
-    yield * barrier(ctx, 'rotationEval_phase')
-    yield * lookAtOther(ctx, EVAL_DPS)
-    yield * barrier(ctx, 'rotationEval_signal')
-    const kase = cfg.episode % 6
-    const rotator = ctx.sortedNames[kase < 3 ? 0 : 1]
-    const degrees = [40, -40, 180][kase % 3]
-    ctx.evalMetadata = { bots_chosen: [rotator], rotation_degrees: degrees, camera_speed_degrees_per_sec: EVAL_DPS, case_num: kase }
-    if (ctx.name !== rotator) return
-    yield * sneakSignal(ctx)
-    yield * look(ctx, ctx.yaw + degrees * Math.PI / 180, ctx.pitch, EVAL_DPS)
-    yield * padTo(ctx, EPISODE_MIN_TICKS)
-  },
-  // A short smoke type for tests/benchmarks (not a paper type): both bots turn to each other and hold still.
-  * lookAtEachOther (ctx) {
-    yield * barrier(ctx, 'lookAtEachOther')
-    yield * lookAtOther(ctx, EVAL_DPS)
-    yield * idle(ctx, Math.max(0, (cfg.smokeTicks || 200) - ctx.tick))
-  },
-  * oneLooksAwayEval (ctx) { yield * lookAway(ctx, 'oneLooksAwayEval', [ctx.sortedNames[cfg.episode % 2]]) },
-  * bothLookAwayEval (ctx) { yield * lookAway(ctx, 'bothLookAwayEval', ctx.sortedNames) }
-}
-EPISODES.rotationEval.isEval = EPISODES.oneLooksAwayEval.isEval = EPISODES.bothLookAwayEval.isEval = true
-
-function * lookAway (ctx, type, actors) {
-  yield * barrier(ctx, `${type}_phase`)
-  yield * lookAtOther(ctx, EVAL_DPS)
-  yield * barrier(ctx, `${type}_signal`)
-  const dir = ctx.shared() < 0.5 ? -1 : 1
-  const offset = 90 * dir + ctx.shared() * 45 - 22.5
-  ctx.evalMetadata = { bots_chosen: actors, mode: type, camera_speed_degrees_per_sec: EVAL_DPS, look_away_offset_deg: offset, look_away_direction: dir, freeze_ticks: 60 }
-  if (!actors.includes(ctx.name)) return
-  const yaw0 = ctx.yaw; const pitch0 = ctx.pitch
-  yield * sneakSignal(ctx)
-  yield * look(ctx, yaw0 + Math.PI + offset * Math.PI / 180, pitch0, EVAL_DPS)
-  yield * idle(ctx, 60)
-  yield * look(ctx, yaw0, pitch0, EVAL_DPS)
-  yield * padTo(ctx, EPISODE_MIN_TICKS)
-}
+// The episode choreographies (engine-spec §5-§6) and the spawn/item plan live in episodes.js.
+const { EPISODES, EVAL_TYPES, planEpisode, yawTo, pitchTo } = require('./episodes')
 
 // ---------------------------------------------------------------------------------------------
 // Bots, views and the tick loop
@@ -217,6 +102,42 @@ function makeView (bot) {
   }
 }
 
+// Apply one choreography intent (see episodes.js) to a bot on its physics tick. Once-events land in
+// `pending` (read and reset by the tick's row): hotbar on the key press, attack on the swing,
+// place_block when the server confirms the block (as the reference's recorder does); `dig` hooks
+// count digs in progress (mine is sustained while one runs).
+function applyIntent (bot, name, intent, pending, dig) {
+  if (intent.hotbar !== undefined) {
+    if (!(intent.hotbar >= 1 && intent.hotbar <= 9)) throw new Error(`${name}: intent.hotbar must be 1..9, got ${intent.hotbar}`)
+    bot.setQuickBarSlot(intent.hotbar - 1)
+    pending.hotbar = intent.hotbar
+  }
+  for (const k of CONTROL_KEYS) bot.setControlState(k, !!intent.controls[k])
+  if (intent.yaw !== undefined) bot.look(intent.yaw, intent.pitch, true)
+  if (intent.attack) {
+    bot.attack(intent.attack)
+    pending.attack = 1
+  }
+  if (intent.place) {
+    const ref = bot.blockAt(intent.place.ref)
+    const dest = intent.place.ref.plus(intent.place.face)
+    if (ref && bot.heldItem) {
+      bot.once(`blockUpdate:${dest}`, (oldB, newB) => { if (newB && newB.name !== 'air') pending.place_block = 1 })
+      bot._genericPlace(ref, intent.place.face, { forceLook: 'ignore', swingArm: 'right' })
+        .catch(err => log(`${name}: place at ${dest} failed: ${err.message}`))
+    }
+  }
+  if (intent.dig) {
+    const block = bot.blockAt(intent.dig.pos)
+    if (block && block.name !== 'air') {
+      dig.start()
+      bot.dig(block, 'ignore', intent.dig.face)
+        .catch(err => log(`${name}: dig at ${intent.dig.pos} failed: ${err.message}`))
+        .finally(dig.end)
+    }
+  }
+}
+
 async function main () {
   if (!EPISODES[cfg.episodeType]) fail(`unknown episodeType ${cfg.episodeType}; known: ${Object.keys(EPISODES)}`)
   fs.mkdirSync(cfg.outDir, { recursive: true })
@@ -230,23 +151,29 @@ async function main () {
     bots.push(bot)
   }
   log('both bots spawned')
-  // Spread the bots U(spawnMin, spawnMax) apart on the flat surface around the origin.
+  // The episode's plan (spawn spots around the origin, items, shared layout). Far teleports strand a bot
+  // in unloaded chunks, so every episode plays near the origin on a fresh server (collect.py restarts it).
   const place = rngFrom(`place_${cfg.seed}_${cfg.episode}`)
-  const d = uniform(place, cfg.spawnMin, cfg.spawnMax); const ang = place() * 2 * Math.PI
-  const spots = [[0, 0], [Math.round(d * Math.cos(ang)), Math.round(d * Math.sin(ang))]]
-  bots.forEach((b, i) => b.chat(`/tp ${spots[i][0]} 5 ${spots[i][1]}`))
+  const plan = planEpisode(cfg.episodeType, cfg, place)
+  const spots = plan.spots
+  if (plan.layout.centre) plan.layout.centre = [plan.layout.centre[0], SURFACE_Y, plan.layout.centre[2]]
+  bots.forEach((b, i) => b.chat(`/tp ${spots[i][0]} ${SURFACE_Y} ${spots[i][1]}`))
   bots.forEach(b => b.chat('/time set 6000'))
+  bots.forEach((b, i) => { for (const [item, count] of plan.items[names[i]]) b.chat(`/give ${names[i]} ${item} ${count}`) })
+  const hasItems = (b, i) => plan.items[names[i]].every(([item]) => b.inventory.items().some(it => it.name === item))
   const deadline = Date.now() + 15000
-  while (!bots.every((b, i) => b.players[names[1 - i]] && b.players[names[1 - i]].entity &&
+  while (!bots.every((b, i) => b.players[names[1 - i]] && b.players[names[1 - i]].entity && hasItems(b, i) &&
     xzDist(b.entity.position, { x: spots[i][0] + 0.5, z: spots[i][1] + 0.5 }) < 0.1)) {
-    if (Date.now() > deadline) fail(`bots did not see each other / reach their spawn spots within 15 s: ${JSON.stringify(bots.map((b, i) => ({ pos: b.entity.position, spot: spots[i], seesOther: !!(b.players[names[1 - i]] && b.players[names[1 - i]].entity) })))}`)
+    if (Date.now() > deadline) fail(`bots did not see each other / reach their spawn spots / get their items within 15 s: ${JSON.stringify(bots.map((b, i) => ({ pos: b.entity.position, spot: spots[i], seesOther: !!(b.players[names[1 - i]] && b.players[names[1 - i]].entity), items: b.inventory.items().map(it => it.name) })))}`)
     await sleep(100)
   }
+  // Empty hand: select the first empty hotbar slot (not recorded).
+  bots.forEach(b => { const s = [...Array(9).keys()].find(k => !b.inventory.slots[36 + k]); if (s !== undefined) b.setQuickBarSlot(s) })
   const views = bots.map(makeView)
   // Face each other before recording (instant, not recorded).
   bots.forEach((b, i) => {
-    const [yaw, pitch] = yawPitchTo(b.entity.position, b.players[names[1 - i]].entity.position)
-    b.look(yaw, pitch, true)
+    const o = b.players[names[1 - i]].entity.position
+    b.look(yawTo(b.entity.position, o), pitchTo(b.entity.position, o), true)
   })
   await sleep(cfg.warmupMs) // chunk meshing warm-up (~2.5 s before the first good frame)
   await Promise.race([Promise.all(views.map(v => v.viewer.waitForChunksToRender())), sleep(10000)])
@@ -254,23 +181,28 @@ async function main () {
 
   const episodeType = cfg.episodeType
   const arrived = {} // barrier name -> Set of bot names
+  const board = {} // barrier payloads and posts, shared by both choreographies
   const states = bots.map((bot, i) => {
     const name = names[i]; const other = names[1 - i]
+    const pending = { attack: 0, place_block: 0, hotbar: null } // once-events since the previous row
+    let digs = 0 // digs in progress (mine is sustained while > 0)
     const ctx = {
-      bot, name, sortedNames, isLower: name === sortedNames[0], tick: -1, startTick: null, evalMetadata: {},
-      yaw: bot.entity.yaw, pitch: bot.entity.pitch,
+      bot, name, other, sortedNames, isLower: name === sortedNames[0], episode: cfg.episode, tick: -1,
+      startTick: null, evalMetadata: {}, summary: {}, board, layout: plan.layout, smokeTicks: cfg.smokeTicks,
       shared: rngFrom(`${cfg.seed + 12345}_${cfg.episode}`),
       rng: rngFrom(`${cfg.seed + 12345}_${cfg.episode}_${name}`),
-      otherPos: () => bot.players[other] && bot.players[other].entity ? bot.players[other].entity.position : null
+      digging: () => digs > 0
     }
-    const script = (function * () { yield * idle(ctx, 20); yield * EPISODES[episodeType](ctx) })()
+    const apply = (intent) => applyIntent(bot, name, intent, pending, { start: () => digs++, end: () => digs-- })
+    const script = (function * () { for (let k = 0; k < PRE_ROLL_TICKS; k++) yield { controls: {} }; yield * EPISODES[episodeType](ctx) })()
     return {
-      name, ctx, script, waiting: null, finished: false, stopped: false, t: 0, lastMs: null, bursts: 0,
+      name, ctx, script, pending, apply, waiting: null, finished: false, stopped: false, t: 0, lastMs: null, bursts: 0,
       fd: fs.openSync(path.join(cfg.outDir, `${name}.rgba`), 'w'),
       rows: fs.openSync(path.join(cfg.outDir, `${name}.jsonl`), 'w')
     }
   })
   let stopAt = null
+  let abortReason = ''
   let resolveDone
   const done = new Promise(resolve => { resolveDone = resolve })
 
@@ -289,7 +221,13 @@ async function main () {
     let intent = { controls: {} }
     if (s.waiting && arrived[s.waiting].size === bots.length) s.waiting = null
     if (!s.waiting && !s.finished) {
-      const r = s.script.next()
+      let r
+      try { r = s.script.next() } catch (err) { // the choreography gave up: the episode aborts for both bots
+        log(`${s.name} aborts the episode: ${err && err.stack ? err.stack : err}`)
+        abortReason = abortReason || `${s.name}: ${err && err.message ? err.message : err}`
+        r = { done: true }
+        if (stopAt === null) stopAt = Math.max(...states.map(x => x.t)) + 1
+      }
       if (r.done) s.finished = true
       else if (r.value.barrier) {
         s.waiting = r.value.barrier
@@ -297,16 +235,16 @@ async function main () {
         arrived[s.waiting].add(s.name)
       } else intent = r.value
     }
-    for (const k of CONTROL_KEYS) bot.setControlState(k, !!intent.controls[k])
-    if (intent.yaw !== undefined) bot.look(intent.yaw, intent.pitch, true)
+    s.apply(intent)
     const row = {
       t: s.t, x: pos.x, y: pos.y, z: pos.z, yaw, pitch, yaw_next: bot.entity.yaw, pitch_next: bot.entity.pitch,
       controls: Object.fromEntries(CONTROL_KEYS.map(k => [k, !!intent.controls[k]])),
-      events: { attack: 0, use: 0, place_block: 0, mine: false, hotbar: null },
+      events: { attack: s.pending.attack, use: 0, place_block: s.pending.place_block, mine: ctx.digging(), hotbar: s.pending.hotbar },
       quickBarSlot: bot.quickBarSlot, renderTime: Date.now(), physicsTime: now,
       worldAgeTicks: bot.time && bot.time.age !== undefined ? Number(bot.time.age) : null,
       isInWater: !!bot.entity.isInWater, dtMs: dt, waiting: s.waiting
     }
+    s.pending.attack = 0; s.pending.place_block = 0; s.pending.hotbar = null
     fs.writeSync(s.rows, JSON.stringify(row) + '\n')
     s.t++
     if (stopAt === null && states.every(x => x.finished)) stopAt = Math.max(...states.map(x => x.t))
@@ -322,9 +260,9 @@ async function main () {
   }))
   await done
   const info = {
-    episodeType, episode: cfg.episode, seed: cfg.seed, names, isEval: !!EPISODES[episodeType].isEval,
+    episodeType, episode: cfg.episode, seed: cfg.seed, names, isEval: EVAL_TYPES.has(episodeType), summary: Object.fromEntries(states.map(s => [s.name, s.ctx.summary])),
     renderWidth: cfg.renderWidth, renderHeight: cfg.renderHeight, fovDeg: cfg.fovDeg, eyeHeight: EYE,
-    aborted: states.some(s => !s.finished), abortReason: states.some(s => !s.finished) ? `episode exceeded maxTicks=${cfg.maxTicks}` : '',
+    aborted: states.some(s => !s.finished), abortReason: abortReason || (states.some(s => !s.finished) ? `episode exceeded maxTicks=${cfg.maxTicks}` : ''),
     bots: Object.fromEntries(states.map(s => [s.name, { frames: s.t, bursts: s.bursts, startTick: s.ctx.startTick, evalMetadata: s.ctx.evalMetadata }]))
   }
   const tmp = path.join(cfg.outDir, `episode.json.tmp-${process.pid}`)

@@ -28,6 +28,13 @@ const serv = mcServer.createMCServer({
   version: cfg.version
 })
 
+// The reference gives every bot resistance 255 (engine-spec §4): hits knock back but never hurt, so
+// pvp bouts never kill. flying-squid has no such effect; keep every player's health full instead.
+serv.on('newPlayer', (player) => {
+  const updateHealth = player.updateHealth
+  if (typeof updateHealth === 'function') player.updateHealth = (health) => updateHealth(Math.max(health, 20))
+})
+
 serv.on('listening', (port) => {
   process.stdout.write(JSON.stringify({ event: 'ready', port }) + '\n')
 })
