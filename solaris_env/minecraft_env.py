@@ -101,8 +101,8 @@ class MinecraftParallelEnv(RealParallelEnv):
     Actions: ``forward back left right jump sneak sprint`` are held (mineflayer control states),
     ``camera`` turns the view (pitch clamped to +-90 degrees; mineflayer quantises turns to 0.15 degree
     mouse steps, ``action_record["camera"]`` is what was applied), ``hotbar.k`` selects slot k,
-    ``attack`` hits a player under the crosshair within 3 blocks (else swings the arm; flying-squid deals 1
-    damage with knockback, and a killed player respawns at the world spawn). Not available on
+    ``attack`` hits a player under the crosshair within 3 blocks (else swings the arm): knockback, no damage
+    (``server.js`` keeps health full, like the reference's resistance effect). Not available on
     this backend (accepted, no effect): digging and placing blocks (``attack`` on a block, ``use``),
     ``drop inventory ESC swapHands pickItem``; ``placed`` / ``mined`` infos are always empty.
 

@@ -34,9 +34,16 @@ function yawPitchTo (from, to) {
   return [Math.atan2(-dx, -dz), Math.atan2(dy, Math.hypot(dx, dz))]
 }
 
-// A bot on cfg's server; kicks and errors call fail(message) (which should exit the process).
+// A bot on cfg's server (knockback packets fixed up); kicks and errors call fail(message) (which should exit).
 function makeBot (cfg, name, fail, options = {}) {
   const bot = mineflayer.createBot({ host: cfg.host, port: cfg.port, username: name, auth: 'offline', version: cfg.version, viewDistance: 'tiny', ...options })
+  // flying-squid 1.12 writes entity_velocity (knockback) as {velocity: {x, y, z}} but mineflayer 4.25 reads
+  // velocityX/Y/Z: without this a hit player's velocity, then position, become NaN.
+  bot._client.prependListener('entity_velocity', (packet) => {
+    if (packet.velocityX === undefined && packet.velocity) {
+      Object.assign(packet, { velocityX: packet.velocity.x, velocityY: packet.velocity.y, velocityZ: packet.velocity.z })
+    }
+  })
   bot.on('kicked', (reason) => fail(`${name} kicked: ${JSON.stringify(reason)}`))
   bot.on('error', (err) => fail(`${name} error: ${err && err.stack ? err.stack : err}`))
   return bot

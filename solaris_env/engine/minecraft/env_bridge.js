@@ -273,13 +273,6 @@ async function main () {
   // One after the other: a player joining while the other is mid-login is not announced to it.
   for (const name of cfg.names) {
     const bot = common.makeBot(cfg, name, fail, { physicsEnabled: false }) // our clock runs the physics
-    // flying-squid 1.12 writes entity_velocity (knockback) as {velocity: {x, y, z}} but mineflayer 4.25 reads
-    // velocityX/Y/Z: without this the hit player's velocity, then position, become NaN.
-    bot._client.prependListener('entity_velocity', (packet) => {
-      if (packet.velocityX === undefined && packet.velocity) {
-        Object.assign(packet, { velocityX: packet.velocity.x, velocityY: packet.velocity.y, velocityZ: packet.velocity.z })
-      }
-    })
     await new Promise((resolve) => bot.once('spawn', resolve))
     const world = { getBlock: (pos) => bot.blockAt(pos, false) }
     const engine = Physics(bot.registry, world)
