@@ -193,8 +193,13 @@ def minecraft_rate(out: Path, quick: bool) -> None:
     load_before = os.getloadavg()
     env_rows = [minecraft_env_rate(r, 200 if quick else MC_ENV_STEPS)
                 for r in (MC_ENV_RESOLUTIONS[:1] if quick else MC_ENV_RESOLUTIONS)]
+    from solaris_env.engine.minecraft.supervisor import ProcessError
+
     with tempfile.TemporaryDirectory() as tmp:
-        rec_rows = minecraft_recorder_rate(tmp, quick)
+        try:
+            rec_rows = minecraft_recorder_rate(tmp, quick)
+        except (ProcessError, RuntimeError) as e:  # the env numbers still count; say why these are missing
+            rec_rows = {"error": str(e)[-2000:]}
     result = {
         "backend": "minecraft",
         "env": env_rows,
