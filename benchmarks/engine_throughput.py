@@ -18,12 +18,13 @@ Writes ``benchmarks/results/engine_throughput.json``:
 
 Targets: >= 500 frames/s batched at 64x64; collection >= 10x real time.
 
-    .venv/bin/python benchmarks/engine_throughput.py --backend minecraft [--quick]   # ~2.5 min (quick ~1 min)
+    .venv/bin/python benchmarks/engine_throughput.py --backend minecraft [--quick]   # ~4 min (quick ~1 min)
 
 writes ``benchmarks/results/engine_throughput_minecraft.json`` instead (needs ``solaris-engine
-setup-minecraft``; one bot pair at a time): ``env`` = ``RealParallelEnv(backend="minecraft")`` at 64 and 128
-(env steps/s, frames/s, CPU cores per pair = CPU seconds of Node + server + Xvfb over wall time, Python's CPU,
-and how many steps kept real time) and ``recorder`` = ``record.js`` rotationEval episodes at 128x128.
+setup-minecraft``; one bot pair at a time): ``env`` = ``RealParallelEnv(backend="minecraft")`` at 64 and
+128, and at 64 with ticks_per_step=4 (env steps/s, frames/s, CPU cores per pair = CPU seconds of Node +
+server + Xvfb over wall time, Python's CPU, and how many steps kept real time) and ``recorder`` =
+``record.js`` rotationEval episodes at 128x128.
 Real time caps both at 20 ticks/s = 40 frames/s per pair.
 """
 
@@ -118,12 +119,12 @@ def _proc_cpu_s(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-MC_ENV_STEPS = 600  # 30 s of real time per resolution (--quick: 200)
-MC_ENV_RESOLUTIONS = (64, 128)  # --quick: 64 only
+MC_ENV_TICKS = 600  # 30 s of real time per configuration (--quick: 200)
+MC_ENV_CONFIGS = ((64, 1), (128, 1), (64, 4))  # (resolution, ticks_per_step); --quick: the first only
 
 
-def minecraft_env_rate(resolution: int, steps: int) -> dict:
-    """``RealParallelEnv(backend="minecraft")`` (one bot pair) stepped ``steps`` times (k = 1) by a random
+def minecraft_env_rate(resolution: int, ticks_per_step: int, ticks: int) -> dict:
+    """``RealParallelEnv(backend="minecraft")`` (one bot pair) stepped for ``ticks`` game ticks by a random
     policy answering at once: env steps/s, frames/s (both players), the step-timing counters, and CPU
     cores used (process CPU time over wall time) by the bridge (Node: both bots + views), the server and
     Xvfb together, and by this Python process (frame resampling, ground truth, the protocol)."""
@@ -131,7 +132,9 @@ def minecraft_env_rate(resolution: int, steps: int) -> dict:
 
     import solaris_env
 
-    env = solaris_env.RealParallelEnv(backend="minecraft", resolution=resolution, max_steps=steps + 1)
+    steps = ticks // ticks_per_step
+    env = solaris_env.RealParallelEnv(backend="minecraft", resolution=resolution, max_steps=steps + 1,
+                                      ticks_per_step=ticks_per_step)
     try:
         t0 = time.perf_counter()
         env.reset(seed=0)
@@ -150,9 +153,10 @@ def minecraft_env_rate(resolution: int, steps: int) -> dict:
         env.close()
     by_proc = {name: round((cpu1[name] - cpu0[name]) / wall, 3) for name in cpu1}
     py_cpu = (py1.ru_utime + py1.ru_stime) - (py0.ru_utime + py0.ru_stime)
-    return {"resolution": resolution, "players": P, "steps": steps, "wall_s": round(wall, 2),
+    return {"resolution": resolution, "ticks_per_step": ticks_per_step, "players": P, "steps": steps,
+            "wall_s": round(wall, 2),
             "start_and_first_reset_s": round(start_s, 1),
-            "env_steps_per_s": round(steps / wall, 2), "frames_per_s": round(P * steps / wall, 1),
+            "env_steps_per_s": round(steps / wall, 2), "frames_per_s": round(P * steps * ticks_per_step / wall, 1),
             "cpu_cores_pair": round(sum(by_proc.values()), 3), "cpu_cores_by_process": by_proc,
             "cpu_cores_python": round(py_cpu / wall, 3),
             "realtime_steps_fraction": round(sum(t["realtime"] for t in timings) / steps, 3),
@@ -191,8 +195,8 @@ def minecraft_recorder_rate(tmp: str, quick: bool) -> list[dict]:
 def minecraft_rate(out: Path, quick: bool) -> None:
     """The real-Minecraft backend, one bot pair at a time: the env (real-time steps) and the recorder."""
     load_before = os.getloadavg()
-    env_rows = [minecraft_env_rate(r, 200 if quick else MC_ENV_STEPS)
-                for r in (MC_ENV_RESOLUTIONS[:1] if quick else MC_ENV_RESOLUTIONS)]
+    env_rows = [minecraft_env_rate(r, k, 200 if quick else MC_ENV_TICKS)
+                for r, k in (MC_ENV_CONFIGS[:1] if quick else MC_ENV_CONFIGS)]
     from solaris_env.engine.minecraft.supervisor import ProcessError
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -205,9 +209,10 @@ def minecraft_rate(out: Path, quick: bool) -> None:
         "env": env_rows,
         "recorder": rec_rows,
         "notes": {
-            "env": "RealParallelEnv(backend='minecraft'), k=1, random actions; wall time of the timed steps only "
-                   "(after start-up, the first reset and one step); real time caps it at 20 steps/s and "
-                   "40 frames/s per pair; cpu_cores_pair = CPU seconds of env_bridge (Node) + server + Xvfb / wall",
+            "env": "RealParallelEnv(backend='minecraft'), random actions; wall time of the timed steps only "
+                   "(after start-up, the first reset and one step); real time caps it at 20 / ticks_per_step "
+                   "steps/s and 40 frames/s per pair; cpu_cores_pair = CPU seconds of env_bridge (Node) + server "
+                   "+ Xvfb / wall",
             "recorder": "wall_s includes bot login, teleport and ~3 s of chunk-meshing warm-up per episode; "
                         "cpu_cores_pair = CPU seconds of record.js + server + Xvfb / wall",
         },
