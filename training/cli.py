@@ -49,7 +49,7 @@ def run_stage(stage: str, args, stage_cfg: dict) -> Path:
     if stage == "vae":
         return train.train_vae(args.out, args.data, stage_cfg["preset"], stage_cfg["vae"], **kw)
     if stage == "vae-decoder":
-        return train.train_vae_decoder(args.out, args.data, stage_cfg["vae-decoder"], **kw)
+        return train.train_vae_decoder(args.out, args.data, stage_cfg["preset"], stage_cfg["vae-decoder"], **kw)
     if stage in train.FLOW_STAGES:
         return train.train_flow(stage, args.out, args.data, stage_cfg[stage], **kw)
     if stage == "self-forcing":

@@ -33,7 +33,7 @@ import optax
 from flax import nnx
 
 from solaris_env.world_model import checkpoint
-from solaris_env.world_model.config import WorldModelConfig
+from solaris_env.world_model.config import VAEConfig, WorldModelConfig
 from solaris_env.world_model.config import preset as make_preset
 from solaris_env.world_model.dit import WorldDiT
 from solaris_env.world_model.world_model import COMPONENTS, WorldModel
@@ -234,10 +234,14 @@ def train_vae(out: str | Path, data_dir: str | Path, preset_name: str, stage_cfg
     return model_dir(out, "vae")
 
 
-def train_vae_decoder(out: str | Path, data_dir: str | Path, stage_cfg: dict, seed: int = 0,
+def train_vae_decoder(out: str | Path, data_dir: str | Path, preset_name: str, stage_cfg: dict, seed: int = 0,
                       steps: int | None = None, resume: bool = True, fsdp: bool = False) -> Path:
     """Fine-tune the decoder side of ``out/vae/model`` on long clips (``training.vae``: the encoder, the
-    latent statistics and so every latent stay fixed); write ``out/vae-decoder/model``."""
+    latent statistics and so every latent stay fixed); write ``out/vae-decoder/model``.
+
+    The decoder takes the preset's decoder layout (``VAEConfig.decoder_layout``); when the trained VAE's
+    differs, it is rebuilt in that layout, warm-started from every trained leaf of the same path and shape
+    (``relayout_decoder``)."""
     from training import vae as V
     from training.samples import write_json
 
@@ -245,6 +249,12 @@ def train_vae_decoder(out: str | Path, data_dir: str | Path, stage_cfg: dict, se
     sc = dict(stage_cfg)
     steps = steps or sc["steps"]
     cfg, (dit, vae, encoder) = load_stage_model(out, "vae")
+    target = cfg.vae.with_decoder_layout(make_preset(preset_name).vae)
+    if target != cfg.vae:
+        vae, copied = relayout_decoder(vae, target, seed)
+        cfg = cfg.replace(vae=target)
+        _log_json(stage_dir(out, "vae-decoder") / "relayout.jsonl", {"decoder_layout": target.decoder_layout(),
+                                                                      "warm_started_leaves": copied})
     k = cfg.frames_per_step
     params = nnx.state(vae, nnx.Param)
     tx = V.make_decoder_optimizer(sc["lr"], params)
@@ -274,6 +284,30 @@ def train_vae_decoder(out: str | Path, data_dir: str | Path, stage_cfg: dict, se
     write_json(stage_dir(out, "vae-decoder") / "summary.json",
                {"steps": steps, "num_frames": sc["num_frames"], "before": before, "after": after})
     return model_dir(out, "vae-decoder")
+
+
+def relayout_decoder(vae, target: VAEConfig, seed: int):
+    """``vae`` rebuilt with ``target``'s (decoder) layout: every parameter whose path and shape exist in
+    both is copied (so the encoder side, and the latent space, are exactly ``vae``'s), the rest is
+    freshly initialised. Returns (the new VAE, the copied decoder-side paths as strings)."""
+    from solaris_env.world_model.vae import CausalVideoVAE
+    from training.vae import DECODER_MODULES
+
+    fresh = CausalVideoVAE(target, rngs=nnx.Rngs(seed))
+    old = dict(nnx.to_flat_state(nnx.state(vae, nnx.Param)))
+    new = nnx.state(fresh, nnx.Param)
+    copied = []
+    for path, var in nnx.to_flat_state(new):
+        src = old.get(path)
+        if src is not None and src.get_value().shape == var.get_value().shape:
+            var.set_value(src.get_value())
+            if path[0] in DECODER_MODULES:
+                copied.append("/".join(map(str, path)))
+        elif path[0] not in DECODER_MODULES:
+            raise ValueError(f"relayout_decoder: encoder-side parameter {'/'.join(map(str, path))} does not match "
+                             f"(target layout {target.decoder_layout()} must change only the decoder)")
+    nnx.update(fresh, new)
+    return fresh, copied
 
 
 def single_player_clips(data_dir: Path, cfg: WorldModelConfig, sc: dict, seed: int):
@@ -457,9 +491,9 @@ def with_decoder(model: str | Path, decoder_from: str | Path, dest: str | Path) 
                    for a, b in zip(jax.tree.leaves(mine[name]), jax.tree.leaves(theirs[name])))
         if not same:
             raise ValueError(f"{decoder_from}: its VAE {name!r} differs from {model}'s: not the same latent space")
-    if stats(base.config) != stats(donor.config) or base.config.vae != donor.config.vae:
+    if stats(base.config) != stats(donor.config) or base.config.vae.with_decoder_layout(donor.config.vae) != donor.config.vae:
         raise ValueError(f"{decoder_from}: VAE config / latent statistics differ from {model}'s")
-    WorldModel(base.config, dit, donor_vae, encoder).save(dest)
+    WorldModel(base.config.replace(vae=donor.config.vae), dit, donor_vae, encoder).save(dest)
     return Path(dest)
 
 

@@ -114,6 +114,9 @@ class ActionConfig:
         return self.keyboard_dim + self.mouse_dim
 
 
+DECODER_LAYOUT_FIELDS = ("decoder_base_dim", "decoder_head_upscale")
+
+
 @dataclass(frozen=True, slots=True)
 class VAEConfig:
     """A Wan-style causal video VAE (model-spec §7.1). ``temporal_downsample[i]`` says whether stage i
@@ -128,6 +131,10 @@ class VAEConfig:
     # Decoder stage widths are decoder_base_dim * dim_mult[i]; 0 = base_dim (the Wan/solaris layout).
     # A narrower decoder makes the streaming env step cheaper (the decoder dominates it on CPU).
     decoder_base_dim: int = 0
+    # The decoder's head predicts decoder_head_upscale**2 RGB pixels per position, rearranged depth-to-space,
+    # so the decoder runs log2(it) fewer (spatial-only) upsampling stages: 1 = Wan/solaris. On CPU the
+    # full-resolution stage of a narrow decoder is its least efficient part (few channels per SIMD lane).
+    decoder_head_upscale: int = 1
     # How the first-frame conditioning latents are encoded (conditioning.py): "video" = Wan i2v, the
     # video [first frame, gray, gray, ...] (latents 1.. see the gray frames; ~1 + 4 * 21 frames encoded
     # per start for solaris); "image" = only latent 0 carries the first frame's encoding, later
@@ -148,11 +155,30 @@ class VAEConfig:
         _require(self.cond_encoding in COND_ENCODINGS,
                  f"cond_encoding must be one of {COND_ENCODINGS}, got {self.cond_encoding!r}")
         _require(self.decoder_base_dim >= 0, f"decoder_base_dim must be >= 0 (0 = base_dim), got {self.decoder_base_dim}")
+        u = self.decoder_head_upscale
+        _require(u >= 1 and u & (u - 1) == 0 and u <= self.spatial_factor,
+                 f"decoder_head_upscale must be a power of 2 in [1, {self.spatial_factor}], got {u}")
+        dropped = self.temporal_downsample[:self.head_upscale_stages]  # the decoder's last = the encoder's first
+        _require(not any(dropped), f"decoder_head_upscale={u} would drop a temporal upsampling stage "
+                                   f"(temporal_downsample={self.temporal_downsample}): only spatial-only stages can go")
 
     @property
     def decoder_dim(self) -> int:
         """Base width of the decoder stages: ``decoder_base_dim``, or ``base_dim`` when it is 0."""
         return self.decoder_base_dim or self.base_dim
+
+    def decoder_layout(self) -> dict:
+        """The fields that shape only the decoder (the latent space does not depend on them)."""
+        return {name: getattr(self, name) for name in DECODER_LAYOUT_FIELDS}
+
+    def with_decoder_layout(self, other: "VAEConfig") -> "VAEConfig":
+        """This VAE (its encoder side and latent statistics) with ``other``'s decoder layout."""
+        return dataclasses.replace(self, **other.decoder_layout())
+
+    @property
+    def head_upscale_stages(self) -> int:
+        """How many of the decoder's last upsampling stages the head's depth-to-space replaces."""
+        return self.decoder_head_upscale.bit_length() - 1
 
     @property
     def spatial_factor(self) -> int:
@@ -356,7 +382,9 @@ class WorldModelConfig:
         latent frame for 2 players (8 frames of 64x64): base 32 / mult (1,2,2,4) 16.8 GFLOP, 130 ms;
         base 16 / mult (1,2,4,4) 5.3 GFLOP, 47 ms (2.5 M params); base 12 / (1,2,4,8) 3.4 GFLOP. Encoder base 16 /
         (1,2,4,4); decoder (decoder_base_dim) with the same mult: 16 -> 5.25 GFLOP, 49 ms; 12 -> 2.98 GFLOP, 38 ms;
-        8 -> 1.35 GFLOP, 19 ms (0.39 M decoder params) -- chosen, to fit the 20 env steps/s budget."""
+        8 -> 1.35 GFLOP, 19 ms (0.39 M decoder params). Its 64x64 stage (8 channels) was half of that time,
+        so the head predicts 2x2 pixels from the 32x32 stage instead (decoder_head_upscale=2: 0.85 GFLOP,
+        9 ms, same parameter count) -- chosen, to fit the 20 env steps/s budget."""
         kw = dict(
             name="tiny", frame_height=64, frame_width=64,
             dit=DiTConfig(dim=256, num_layers=8, num_heads=4, ffn_dim=1024, window=6),
@@ -364,7 +392,7 @@ class WorldModelConfig:
                                 rope_dims=(8, 28, 28), num_action_blocks=4),
             vae=VAEConfig(base_dim=16, z_dim=16, dim_mult=(1, 2, 4, 4), num_res_blocks=1,
                           temporal_downsample=(False, True, True), middle_attention=False, decoder_base_dim=8,
-                          cond_encoding="image"),
+                          decoder_head_upscale=2, cond_encoding="image"),
             image_encoder=ImageEncoderConfig(image_size=64, patch_size=8, width=128, num_layers=2, num_heads=4,
                                              blocks_applied=2, proj_dim=0),
         )

@@ -299,25 +299,34 @@ class Decoder(nnx.Module):
 
     Stage i runs num_res_blocks + 1 ResBlocks at width decoder_dim * dim_mult[-1 - i]; every stage but the
     last ends with an Upsample that halves the channels (so stage i > 0 starts at half the previous width).
+    With ``decoder_head_upscale`` u > 1 the last log2(u) stages are not built: the head predicts u x u
+    RGB pixels per position of the last built stage (depth-to-space, channel = (dy * u + dx) * 3 + rgb).
     """
 
     def __init__(self, cfg: VAEConfig, *, rngs: nnx.Rngs):
         kw = dict(dtype=jnp.dtype(cfg.dtype), param_dtype=jnp.dtype(cfg.param_dtype), rngs=rngs)
-        dims = [cfg.decoder_dim * m for m in (cfg.dim_mult[-1], *cfg.dim_mult[::-1])]
+        num_stages = len(cfg.dim_mult) - cfg.head_upscale_stages
+        dims = [cfg.decoder_dim * m for m in (cfg.dim_mult[-1], *cfg.dim_mult[::-1])][:num_stages + 1]
         temporal_upsample = cfg.temporal_downsample[::-1]
+        self.upscale = cfg.decoder_head_upscale
         self.conv_in = CausalConv3d(cfg.z_dim, dims[0], (3, 3, 3), **kw)
         self.middle = nnx.List(_middle(dims[0], cfg.middle_attention, kw))
         up = []
         for i, out_dim in enumerate(dims[1:]):
             in_dim = dims[0] if i == 0 else dims[i] // 2
             up += [ResBlock(in_dim if j == 0 else out_dim, out_dim, **kw) for j in range(cfg.num_res_blocks + 1)]
-            if i < len(temporal_upsample):
+            if i < num_stages - 1:
                 up.append(Upsample(out_dim, temporal_upsample[i], **kw))
         self.up = nnx.List(up)
-        self.head = Head(dims[-1], 3, **kw)
+        self.head = Head(dims[-1], 3 * self.upscale ** 2, **kw)
 
     def __call__(self, z_BFhwc: jax.Array, cache: Cache) -> tuple[jax.Array, Cache]:
-        return _run_layers([self.conv_in, *self.middle, *self.up, self.head], z_BFhwc, cache)
+        x, cache = _run_layers([self.conv_in, *self.middle, *self.up, self.head], z_BFhwc, cache)
+        u = self.upscale
+        if u > 1:  # depth-to-space
+            B, T, H, W, _ = x.shape
+            x = x.reshape(B, T, H, W, u, u, 3).transpose(0, 1, 2, 4, 3, 5, 6).reshape(B, T, H * u, W * u, 3)
+        return x, cache
 
 
 class CausalVideoVAE(nnx.Module):

@@ -1,5 +1,7 @@
 """VAE stages: the full VAE step learns; the vae-decoder step trains only the decoder side."""
 
+import dataclasses
+
 import jax
 import numpy as np
 import pytest
@@ -88,3 +90,32 @@ def test_with_decoder_takes_the_decoder_and_refuses_another_encoder(tmp_path):
     _perturbed(base, "encoder", 1).save(tmp_path / "other")
     with pytest.raises(ValueError, match="'encoder' differs"):
         with_decoder(tmp_path / "base", tmp_path / "other", tmp_path / "out2")
+
+
+def test_relayout_decoder_keeps_the_latent_space_and_warm_starts_the_decoder(tmp_path):
+    """A trained VAE rebuilt with another decoder layout (vae-decoder stage): the encoder side is copied bit
+    for bit, decoder leaves of the same path and shape are copied, the rest (the new head) is fresh; and
+    with_decoder puts that decoder and its layout into a model of the same encoder."""
+    from training.train import relayout_decoder, with_decoder
+
+    base = WorldModel.from_preset("test", seed=0)
+    cfg = base.config
+    target = cfg.vae.with_decoder_layout(dataclasses.replace(cfg.vae, decoder_head_upscale=2))
+    old_vae = base.modules()[1]
+    new_vae, copied = relayout_decoder(old_vae, target, seed=1)
+    old, new = (dict(nnx.to_flat_state(nnx.state(v, nnx.Param))) for v in (old_vae, new_vae))
+    for path, var in new.items():
+        name = "/".join(map(str, path))
+        if path[0] in ("encoder", "conv1"):
+            assert np.array_equal(var.get_value(), old[path].get_value()), name
+        if name in copied:
+            assert np.array_equal(var.get_value(), old[path].get_value()), name
+    assert "decoder/conv_in/kernel" in copied and "decoder/head/conv/kernel" not in copied
+    assert new[("decoder", "head", "conv", "kernel")].get_value().shape[-1] == 12
+
+    base.save(tmp_path / "base")
+    WorldModel(cfg.replace(vae=target), base.modules()[0], new_vae, base.modules()[2]).save(tmp_path / "donor")
+    out = WorldModel.load(with_decoder(tmp_path / "base", tmp_path / "donor", tmp_path / "out"))
+    assert out.config.vae == target and out.config.dit == cfg.dit
+    frames, _ = out.step(out.init(np.zeros((1, 2) + out.frame_shape, np.uint8), 0), np.zeros((1, 2, 4, 25)))
+    assert frames.shape == (1, 2, 4) + out.frame_shape

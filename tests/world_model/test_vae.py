@@ -10,8 +10,8 @@ import pytest
 from flax import nnx
 
 from solaris_env.world_model.config import VAEConfig, WorldModelConfig
-from solaris_env.world_model.vae import (CausalVideoVAE, SpatialAttention, denormalize_latents, kl_divergence,
-                                         normalize_latents, sample_posterior)
+from solaris_env.world_model.vae import (CausalVideoVAE, SpatialAttention, _run_layers, denormalize_latents,
+                                         kl_divergence, normalize_latents, sample_posterior)
 
 CFG = WorldModelConfig.test()  # 32x32 frames -> 4x4x4 latents, temporal x4
 TF = CFG.vae.temporal_factor
@@ -88,6 +88,58 @@ def test_decoder_base_dim_changes_only_the_decoder():
     assert narrow["encoder/conv_in/kernel"][-1] == 16
     with pytest.raises(ValueError, match="decoder_base_dim"):
         dataclasses.replace(tiny, decoder_base_dim=-1)
+
+
+def test_decoder_head_upscale_replaces_the_last_spatial_stages():
+    """decoder_head_upscale=u: the decoder loses its last log2(u) (spatial-only) upsampling stages, the head
+    predicts u*u*3 channels; shapes, causality of streaming and the encoder side are unchanged."""
+    wan = dataclasses.replace(CFG.vae, decoder_head_upscale=1)
+    up2 = dataclasses.replace(CFG.vae, decoder_head_upscale=2, temporal_downsample=(False, True, True))
+    assert up2.head_upscale_stages == 1 and up2.decoder_layout() == {"decoder_base_dim": 0, "decoder_head_upscale": 2}
+    shapes = lambda cfg: {"/".join(map(str, k)): v.shape for k, v in nnx.to_flat_state(
+        nnx.state(nnx.eval_shape(lambda: CausalVideoVAE(cfg, rngs=nnx.Rngs(0))), nnx.Param))}
+    a, b = shapes(dataclasses.replace(wan, temporal_downsample=(False, True, True))), shapes(up2)
+    assert {k: v for k, v in a.items() if not k.startswith("decoder/")} == \
+           {k: v for k, v in b.items() if not k.startswith("decoder/")}
+    assert b["decoder/head/conv/kernel"][-1] == 3 * 2 * 2 and a["decoder/head/conv/kernel"][-1] == 3
+    assert len({k.split("/")[2] for k in b if k.startswith("decoder/up/")}) < \
+           len({k.split("/")[2] for k in a if k.startswith("decoder/up/")})
+    vae2 = CausalVideoVAE(up2, rngs=rngs(3))
+    z = jax.random.normal(jax.random.key(2), (1, 3, CFG.latent_height, CFG.latent_width, CFG.latent_channels))
+    y_full = decode(vae2, z)
+    assert y_full.shape == (1, 9, CFG.frame_height, CFG.frame_width, 3)
+    cache, frames = None, []
+    for i in range(z.shape[1]):
+        y, cache = decode_step(vae2, z[:, i:i + 1], cache)
+        frames.append(y)
+    np.testing.assert_allclose(jnp.concatenate(frames, axis=1), y_full, atol=1e-4)
+
+
+def test_decoder_head_upscale_is_depth_to_space():
+    """Output pixel (u*i + dy, u*j + dx, c) is head channel (dy*u + dx)*3 + c at position (i, j)."""
+    cfg = dataclasses.replace(MICRO, decoder_head_upscale=2, temporal_downsample=(False,))
+    vae2 = CausalVideoVAE(cfg, rngs=rngs(4))
+    z = jax.random.normal(jax.random.key(5), (1, 1, 4, 4, cfg.z_dim))
+    x, _ = vae2.conv2(z, None)
+    d = vae2.decoder
+    h, _ = _run_layers([d.conv_in, *d.middle, *d.up, d.head], x, None)  # (1, 1, 4, 4, 12)
+    y = vae2.decode_raw(z)  # (1, 1, 8, 8, 3)
+    for dy in range(2):
+        for dx in range(2):
+            np.testing.assert_allclose(y[0, 0, dy::2, dx::2], h[0, 0, :, :, (dy * 2 + dx) * 3:(dy * 2 + dx) * 3 + 3],
+                                       atol=1e-6)
+
+
+@pytest.mark.parametrize("upscale", [0, 3, 16])
+def test_decoder_head_upscale_must_be_a_power_of_two_within_the_spatial_factor(upscale):
+    with pytest.raises(ValueError, match=r"decoder_head_upscale must be a power of 2 in \[1, 8\]"):
+        dataclasses.replace(CFG.vae, decoder_head_upscale=upscale)
+
+
+def test_decoder_head_upscale_cannot_drop_a_temporal_stage():
+    with pytest.raises(ValueError, match="decoder_head_upscale=2 would drop a temporal upsampling stage"):
+        dataclasses.replace(CFG.vae, decoder_head_upscale=2, temporal_downsample=(True, True, False))
+    dataclasses.replace(CFG.vae, decoder_head_upscale=4, temporal_downsample=(False, False, True))  # fine
 
 
 def test_temporal_factor_one_keeps_frame_count():
