@@ -178,12 +178,15 @@ def minecraft_recorder_rate(tmp: str, quick: bool) -> list[dict]:
     with MinecraftSession() as session:
         for ep in range(1 if quick else 2):
             cpu0 = resource.getrusage(resource.RUSAGE_CHILDREN)
-            srv0, xvfb0, t0 = _proc_cpu_s(session.server.pid), _proc_cpu_s(session.xvfb.pid), time.perf_counter()
+            server0 = session.server
+            srv0, xvfb0, t0 = _proc_cpu_s(server0.pid), _proc_cpu_s(session.xvfb.pid), time.perf_counter()
             res = session.record(tmp, EpisodeKey(ep, 0, eval_type="rotationEval"), "rotationEval", 0, 128, 128)
             wall = time.perf_counter() - t0
             cpu1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+            # reaped children: record.js, and the previous server when record() restarted it (fresh world)
             rec_cpu = (cpu1.ru_utime + cpu1.ru_stime) - (cpu0.ru_utime + cpu0.ru_stime)
-            cores = {"recorder": rec_cpu / wall, "server": (_proc_cpu_s(session.server.pid) - srv0) / wall,
+            srv_cpu = _proc_cpu_s(session.server.pid) - (srv0 if session.server is server0 else 0.0)
+            cores = {"recorder": rec_cpu / wall, "server": srv_cpu / wall,
                      "Xvfb": (_proc_cpu_s(session.xvfb.pid) - xvfb0) / wall}
             rows.append({"ticks": res["ticks"], "wall_s": round(wall, 2), "catchup_ticks": res["catchup_ticks"],
                          "frames_per_s": round(2 * res["ticks"] / wall, 1),
@@ -214,7 +217,7 @@ def minecraft_rate(out: Path, quick: bool) -> None:
                    "steps/s and 40 frames/s per pair; cpu_cores_pair = CPU seconds of env_bridge (Node) + server "
                    "+ Xvfb / wall",
             "recorder": "wall_s includes bot login, teleport and ~3 s of chunk-meshing warm-up per episode; "
-                        "cpu_cores_pair = CPU seconds of record.js + server + Xvfb / wall",
+                        "cpu_cores_pair = CPU seconds of record.js + server(s) + Xvfb / wall",
         },
         "machine": machine_info(load_before),
     }
