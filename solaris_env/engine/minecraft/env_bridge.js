@@ -49,6 +49,7 @@ const MAX_CATCHUP = 4 // due ticks run back to back at most (as mineflayer's phy
 const REACH = 3.0 // survival attack reach
 const PITCH_LIMIT = Math.PI / 2
 const TELEPORT_TIMEOUT_MS = 20000
+const FAR_TELEPORT_BLOCKS = 24 // a teleport farther than this waits for the viewers to mesh the new chunks
 
 function log (msg) { process.stderr.write(`[env_bridge] ${msg}\n`) }
 function fail (msg) { log(`FAILED: ${msg}`); process.exit(1) }
@@ -209,6 +210,8 @@ async function reset (req) {
   const spots = req.spots
   if (!Array.isArray(spots) || spots.length !== bots.length) throw new Error(`reset needs one spot per bot (${bots.length})`)
   bots.forEach(b => { for (const k of CONTROL_KEYS) b.setControlState(k, false) })
+  // a bot that wandered off (held keys between steps) comes back to chunks its viewer must mesh again
+  const far = bots.some((b, i) => xzDist(b.entity.position, spots[i]) > FAR_TELEPORT_BLOCKS)
   bots.forEach((b, i) => b.chat(`/tp ${spots[i].x} ${spots[i].y} ${spots[i].z}`))
   bots[0].chat('/time set 6000')
   const at = (p, s) => xzDist(p, { x: s.x + 0.5, z: s.z + 0.5 }) < 0.1
@@ -223,7 +226,7 @@ async function reset (req) {
     await sleep(50)
   }
   bots.forEach((b, i) => b.look(spots[i].yaw, spots[i].pitch, true))
-  if (!warmedUp) { // chunk meshing warm-up (~2.5 s before the first good frame)
+  if (!warmedUp || far) { // chunk meshing warm-up (~2.5 s before the first good frame)
     await sleep(cfg.warmupMs)
     await Promise.race([Promise.all(views.map(v => v.viewer.waitForChunksToRender())), sleep(10000)])
     warmedUp = true
