@@ -89,7 +89,13 @@ class MinecraftParallelEnv(RealParallelEnv):
     after its due time, then run back to back with the next: mineflayer's catch-up) is counted in
     ``catchup_ticks``; ticks skipped when more than 4 were due at once in ``dropped_ticks`` (the game ran
     slower than real time). ``timing["realtime"]`` is True when the step had none of the three. A policy
-    that answers within a tick (50 ms, minus the step's own overhead) sees ``idle_ticks == 0``.
+    that answers within a tick (50 ms, minus the step's own overhead) sees ``idle_ticks == 0``. A paused
+    policy (a training update) leaves the players walking: step with no-ops before pausing, or reset after
+    (a reset that brings a player back from > 24 blocks away waits ~3 s for its view to mesh again).
+
+    Frames: each view is rendered as the 16:9 game window with a 70 degree vertical FOV at (H, 16/9 H) and
+    resampled to (H, W), as the voxel env's frames and the recorder's; no HUD. Other players are drawn where
+    the viewer's client last heard they were (relayed by the server: about a tick behind their own pose).
 
     Args: as :class:`RealParallelEnv`, with these differences:
         world: only ``"flat"``: the server's superflat world (the same world at every reset; ``reset(seed)``
