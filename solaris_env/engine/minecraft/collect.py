@@ -25,6 +25,7 @@ from solaris_env.engine.minecraft.records import (
     MAX_BURST_FRACTION,
     build_records,
     catchup_ticks,
+    edit_events,
     ground_truth,
 )
 from solaris_env.engine.minecraft.supervisor import ProcessError, Supervisor, start_xvfb
@@ -193,8 +194,9 @@ class MinecraftSession:
             output = McEpisodeOutput(_Trace(names, [records[n][:T] for n in names]), episode_type, infos,
                                      [info["bots"][n]["startTick"] for n in names], aborted, reason)
             gt = ground_truth({n: records[n][:T] for n in names}, (height, width), info["fovDeg"], DISPLAY_ASPECT)
+            gt["blocks"], gt["hits"] = edit_events(rows, T)
             gt["backend"] = {"name": "minecraft", "version": MINECRAFT_VERSION, "catchup_ticks": bursts,
-                             "render_size": [rh, rw]}
+                             "render_size": [rh, rw], "summary": info.get("summary", {})}
             frames_PTHW3 = np.stack([f[:T] for f in frames])
             write_episode(out, key, output, frames_PTHW3, gt, split)
             return {"ticks": T, "aborted": aborted, "abort_reason": reason, "catchup_ticks": bursts,

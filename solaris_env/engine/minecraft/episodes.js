@@ -457,7 +457,7 @@ function * pvp (ctx) {
   const n = ticks((10000 + Math.floor(ctx.shared() * 5001)) / 1000)
   yield * lookAt(ctx, eyeOf(otherEntity(ctx)), FAST_LOOK_DPS, { randomized: true })
   yield * sleep(ctx, 0.5)
-  yield * select(ctx, ctx.layout.sword)
+  yield * select(ctx, ctx.layout.swords[ctx.name])
   yield * sleep(ctx, 0.5)
   yield * fight(ctx, n)
 }
@@ -814,7 +814,10 @@ function planEpisode (type, cfg, rng) {
     const d = uniform(rng, cfg.spawnMin, cfg.spawnMax); const ang = rng() * 2 * Math.PI
     spots = [[0, 0], [Math.round(d * Math.cos(ang)), Math.round(d * Math.sin(ang))]]
   }
-  if (type === 'pvp') for (const n of names) { layout.sword = SWORDS[Math.floor(rng() * SWORDS.length)]; items[n].push([layout.sword, 1]) }
+  if (type === 'pvp') { // a random sword each (the reference's Math.random)
+    layout.swords = {}
+    for (const n of names) { layout.swords[n] = SWORDS[Math.floor(rng() * SWORDS.length)]; items[n].push([layout.swords[n], 1]) }
+  }
   if (type === 'buildStructure') for (const n of names) items[n].push(['cobblestone', 64], ['oak_planks', 64], ['bricks', 64])
   if (type === 'buildTower') for (const n of names) items[n].push(['oak_planks', 64])
   if (type === 'placeAndMine') for (const n of names) items[n].push(['oak_planks', 64], ['bricks', 64], ['dirt', 64], ['smooth_sandstone', 64])

@@ -1,11 +1,12 @@
 #!/usr/bin/env node
 // Records one two-bot episode on a running server (server.js): both first-person views are rendered
-// in this process by prismarine-viewer (headless-gl on Xvfb) on every 20 Hz physics tick of each bot,
-// together with that tick's raw action data, so frames and actions align by construction.
+// in this process by prismarine-viewer (headless-gl on Xvfb) on every tick of one 20 Hz clock that steps
+// both bots' physics, together with that tick's raw action data, so frames and actions align by
+// construction and tick t is the same game moment for both bots. The choreographies are episodes.js's.
 //
 // Usage: node record.js '<json config>'
 //   config: {host, port, version, names: [a, b], episodeType, episode, seed, renderWidth, renderHeight,
-//            viewDistance, spawnMin, spawnMax, maxTicks, warmupMs, outDir}
+//            viewDistance, spawnMin, spawnMax, maxTicks, warmupMs, outDir, smokeTicks (lookAtEachOther)}
 // Writes into outDir, per bot <name>.rgba (T frames of renderHeight x renderWidth x 4, bottom row first,
 // as gl.readPixels returns them) and <name>.jsonl (T raw tick rows, see `rawRow`), then episode.json;
 // prints one JSON line {"event":"done",...} and exits 0. Any failure exits non-zero with a message.
@@ -19,6 +20,7 @@ global.Worker = require('worker_threads').Worker
 const fs = require('fs')
 const path = require('path')
 const { performance } = require('perf_hooks')
+const { Physics, PlayerState } = require('prismarine-physics')
 const mineflayer = require('mineflayer')
 const { createCanvas } = require('node-canvas-webgl/lib')
 const { Viewer, WorldView } = require('prismarine-viewer/viewer')
@@ -33,6 +35,8 @@ const TICK_S = 0.05
 const EYE = 1.62
 const SNEAK_EYE = 1.27
 const BURST_DT_MS = 25 // a physicsTick less than this after the previous one is a catch-up tick
+const TICK_MS = 50
+const MAX_CATCHUP_TICKS = 4 // as mineflayer's physics loop
 const CONTROL_KEYS = ['forward', 'back', 'left', 'right', 'jump', 'sprint', 'sneak']
 const PRE_ROLL_TICKS = 20 // the reference sleeps 1 s after recording starts
 const SURFACE_Y = 5 // feet height on server.js's superflat world
@@ -102,6 +106,16 @@ function makeView (bot) {
   }
 }
 
+// flying-squid 1.12 writes entity_velocity (pvp knockback) as {velocity: {x, y, z}} but mineflayer 4.25
+// reads velocityX/Y/Z: without this a hit player's velocity, then position, become NaN.
+function readKnockback (bot) {
+  bot._client.prependListener('entity_velocity', (packet) => {
+    if (packet.velocityX === undefined && packet.velocity) {
+      Object.assign(packet, { velocityX: packet.velocity.x, velocityY: packet.velocity.y, velocityZ: packet.velocity.z })
+    }
+  })
+}
+
 // Apply one choreography intent (see episodes.js) to a bot on its physics tick. Once-events land in
 // `pending` (read and reset by the tick's row): hotbar on the key press, attack on the swing,
 // place_block when the server confirms the block (as the reference's recorder does); `dig` hooks
@@ -117,12 +131,15 @@ function applyIntent (bot, name, intent, pending, dig) {
   if (intent.attack) {
     bot.attack(intent.attack)
     pending.attack = 1
+    pending.hits.push(intent.attack.username || null)
   }
   if (intent.place) {
     const ref = bot.blockAt(intent.place.ref)
     const dest = intent.place.ref.plus(intent.place.face)
     if (ref && bot.heldItem) {
-      bot.once(`blockUpdate:${dest}`, (oldB, newB) => { if (newB && newB.name !== 'air') pending.place_block = 1 })
+      bot.once(`blockUpdate:${dest}`, (oldB, newB) => {
+        if (newB && newB.name !== 'air') { pending.place_block = 1; pending.placed.push([dest.x, dest.y, dest.z, newB.name]) }
+      })
       bot._genericPlace(ref, intent.place.face, { forceLook: 'ignore', swingArm: 'right' })
         .catch(err => log(`${name}: place at ${dest} failed: ${err.message}`))
     }
@@ -130,8 +147,10 @@ function applyIntent (bot, name, intent, pending, dig) {
   if (intent.dig) {
     const block = bot.blockAt(intent.dig.pos)
     if (block && block.name !== 'air') {
+      const { x, y, z } = intent.dig.pos; const was = block.name
       dig.start()
       bot.dig(block, 'ignore', intent.dig.face)
+        .then(() => { const b = bot.blockAt(intent.dig.pos); if (!b || b.name === 'air') pending.mined.push([x, y, z, was]) })
         .catch(err => log(`${name}: dig at ${intent.dig.pos} failed: ${err.message}`))
         .finally(dig.end)
     }
@@ -147,6 +166,7 @@ async function main () {
   const bots = []
   for (const name of names) {
     const bot = makeBot(name)
+    readKnockback(bot)
     await new Promise((resolve) => bot.once('spawn', resolve))
     bots.push(bot)
   }
@@ -184,7 +204,7 @@ async function main () {
   const board = {} // barrier payloads and posts, shared by both choreographies
   const states = bots.map((bot, i) => {
     const name = names[i]; const other = names[1 - i]
-    const pending = { attack: 0, place_block: 0, hotbar: null } // once-events since the previous row
+    const pending = { attack: 0, place_block: 0, hotbar: null, placed: [], mined: [], hits: [] } // events since the previous row
     let digs = 0 // digs in progress (mine is sustained while > 0)
     const ctx = {
       bot, name, other, sortedNames, isLower: name === sortedNames[0], episode: cfg.episode, tick: -1,
@@ -219,7 +239,8 @@ async function main () {
     // The choreography's intent for this tick.
     ctx.tick = s.t; ctx.yaw = yaw; ctx.pitch = pitch
     let intent = { controls: {} }
-    if (s.waiting && arrived[s.waiting].size === bots.length) s.waiting = null
+    // A barrier releases every bot on the tick after the last one reached it (the same tick for all).
+    if (s.waiting && arrived[s.waiting].completeTick !== undefined && arrived[s.waiting].completeTick < s.t) s.waiting = null
     if (!s.waiting && !s.finished) {
       let r
       try { r = s.script.next() } catch (err) { // the choreography gave up: the episode aborts for both bots
@@ -233,18 +254,20 @@ async function main () {
         s.waiting = r.value.barrier
         if (!arrived[s.waiting]) arrived[s.waiting] = new Set()
         arrived[s.waiting].add(s.name)
+        if (arrived[s.waiting].size === bots.length) arrived[s.waiting].completeTick = s.t
       } else intent = r.value
     }
     s.apply(intent)
     const row = {
       t: s.t, x: pos.x, y: pos.y, z: pos.z, yaw, pitch, yaw_next: bot.entity.yaw, pitch_next: bot.entity.pitch,
       controls: Object.fromEntries(CONTROL_KEYS.map(k => [k, !!intent.controls[k]])),
-      events: { attack: s.pending.attack, use: 0, place_block: s.pending.place_block, mine: ctx.digging(), hotbar: s.pending.hotbar },
+      events: { attack: s.pending.attack, use: 0, place_block: s.pending.place_block, mine: ctx.digging(), hotbar: s.pending.hotbar,
+        placed: s.pending.placed, mined: s.pending.mined, hits: s.pending.hits },
       quickBarSlot: bot.quickBarSlot, renderTime: Date.now(), physicsTime: now,
       worldAgeTicks: bot.time && bot.time.age !== undefined ? Number(bot.time.age) : null,
       isInWater: !!bot.entity.isInWater, dtMs: dt, waiting: s.waiting
     }
-    s.pending.attack = 0; s.pending.place_block = 0; s.pending.hotbar = null
+    Object.assign(s.pending, { attack: 0, place_block: 0, hotbar: null, placed: [], mined: [], hits: [] })
     fs.writeSync(s.rows, JSON.stringify(row) + '\n')
     s.t++
     if (stopAt === null && states.every(x => x.finished)) stopAt = Math.max(...states.map(x => x.t))
@@ -255,9 +278,33 @@ async function main () {
       if (states.every(x => x.stopped)) resolveDone()
     }
   }
-  bots.forEach((b, i) => b.on('physicsTick', () => {
-    try { onTick(i) } catch (err) { fail(`tick of ${names[i]}: ${err && err.stack ? err.stack : err}`) }
-  }))
+  // One 20 Hz clock drives both bots in lockstep (mineflayer's per-bot physics timers drift apart under
+  // load): each tick steps Mineflayer's physics for every bot, then renders and acts for every bot, so
+  // tick t of Alpha and tick t of Bravo are the same game moment. A late timer runs up to
+  // MAX_CATCHUP_TICKS ticks back to back (catch-up ticks, counted from dtMs); beyond that the clock
+  // skips ahead (the game ran slower than real time for a moment).
+  const worlds = bots.map(b => ({ getBlock: (pos) => b.blockAt(pos, false) }))
+  const physics = bots.map((b, i) => Physics(b.registry, worlds[i]))
+  bots.forEach(b => { b.physicsEnabled = false }) // mineflayer keeps sending positions; we simulate
+  const clock = { t0: performance.now(), n: 0 }
+  function gameTick () {
+    bots.forEach((b, i) => {
+      if (b.blockAt(b.entity.position) != null) physics[i].simulatePlayer(new PlayerState(b, b.controlState), worlds[i]).apply(b)
+      const p = b.entity.position
+      if (!Number.isFinite(p.x + p.y + p.z)) throw new Error(`${names[i]}'s position is not finite: ${p}`)
+    })
+    bots.forEach((b, i) => onTick(i))
+  }
+  function onClock () {
+    let ran = 0
+    while (performance.now() >= clock.t0 + (clock.n + 1) * TICK_MS) {
+      if (ran === MAX_CATCHUP_TICKS) { clock.n = Math.floor((performance.now() - clock.t0) / TICK_MS); break }
+      clock.n++; ran++
+      try { gameTick() } catch (err) { fail(`tick ${clock.n}: ${err && err.stack ? err.stack : err}`) }
+    }
+    if (!states.every(x => x.stopped)) setTimeout(onClock, Math.max(0, clock.t0 + (clock.n + 1) * TICK_MS - performance.now()))
+  }
+  setTimeout(onClock, TICK_MS)
   await done
   const info = {
     episodeType, episode: cfg.episode, seed: cfg.seed, names, isEval: EVAL_TYPES.has(episodeType), summary: Object.fromEntries(states.map(s => [s.name, s.ctx.summary])),

@@ -110,6 +110,27 @@ def catchup_ticks(rows: Sequence[Mapping], burst_dt_ms: float = BURST_DT_MS) -> 
     return sum(1 for r in rows if r.get("dtMs") is not None and r["dtMs"] < burst_dt_ms)
 
 
+def edit_events(rows_by_bot: Mapping[str, Sequence[Mapping]], num_ticks: int) -> tuple[dict, dict]:
+    """The sidecar's ``blocks`` and ``hits`` column tables (the voxel engine's layout) from the raw rows'
+    ``events.placed`` / ``events.mined`` (``[x, y, z, block name]`` lists) and ``events.hits`` (victim
+    names), in tick order then bot order, over the first ``num_ticks`` ticks."""
+    blocks = {k: [] for k in ("tick", "player", "action", "x", "y", "z", "block")}
+    hits = {k: [] for k in ("tick", "attacker", "victim")}
+    names = list(rows_by_bot)
+    for t in range(num_ticks):
+        for name in names:
+            events = rows_by_bot[name][t].get("events", {})
+            for action, key in (("place", "placed"), ("mine", "mined")):
+                for x, y, z, block in events.get(key, []):
+                    for k, v in zip(blocks, (t, name, action, int(x), int(y), int(z), str(block))):
+                        blocks[k].append(v)
+            for victim in events.get("hits", []):
+                hits["tick"].append(t)
+                hits["attacker"].append(name)
+                hits["victim"].append(victim)
+    return blocks, hits
+
+
 # ---------------------------------------------------------------------------------------------
 # Ground truth from poses + camera
 # ---------------------------------------------------------------------------------------------

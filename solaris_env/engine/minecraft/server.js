@@ -33,6 +33,9 @@ const serv = mcServer.createMCServer({
 serv.on('newPlayer', (player) => {
   const updateHealth = player.updateHealth
   if (typeof updateHealth === 'function') player.updateHealth = (health) => updateHealth(Math.max(health, 20))
+  // Dug blocks drop nothing: the reference's player picks its drops up at once, and prismarine-viewer
+  // draws item entities as magenta squares.
+  player.on('dug', (data) => { data.dropBlock = false })
 })
 
 serv.on('listening', (port) => {
