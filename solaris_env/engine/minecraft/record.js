@@ -15,15 +15,12 @@
 // choreography's intent for this tick (controls + look) and apply it; it acts during s_t -> s_{t+1}.
 // The raw row holds the pose of s_t and the yaw/pitch after the look, so camera delta = what was applied.
 'use strict'
-global.THREE = require('three')
-global.Worker = require('worker_threads').Worker
 const fs = require('fs')
 const path = require('path')
 const { performance } = require('perf_hooks')
 const { Physics, PlayerState } = require('prismarine-physics')
-const mineflayer = require('mineflayer')
-const { createCanvas } = require('node-canvas-webgl/lib')
-const { Viewer, WorldView } = require('prismarine-viewer/viewer')
+const common = require('./common') // bots, views, RNG and angle helpers shared with env_bridge.js
+const { EYE, BURST_DT_MS, CONTROL_KEYS, rngFrom, xzDist } = common
 
 const cfg = Object.assign({
   host: '127.0.0.1', port: 25565, version: '1.20.1', names: ['Alpha', 'Bravo'], episodeType: 'walkLook',
@@ -31,13 +28,8 @@ const cfg = Object.assign({
   maxTicks: 3600, warmupMs: 3000, fovDeg: 70, outDir: '.'
 }, JSON.parse(process.argv[2] || '{}'))
 
-const TICK_S = 0.05
-const EYE = 1.62
-const SNEAK_EYE = 1.27
-const BURST_DT_MS = 25 // a physicsTick less than this after the previous one is a catch-up tick
 const TICK_MS = 50
 const MAX_CATCHUP_TICKS = 4 // as mineflayer's physics loop
-const CONTROL_KEYS = ['forward', 'back', 'left', 'right', 'jump', 'sprint', 'sneak']
 const PRE_ROLL_TICKS = 20 // the reference sleeps 1 s after recording starts
 const SURFACE_Y = 5 // feet height on server.js's superflat world
 
@@ -45,76 +37,15 @@ function log (msg) { process.stderr.write(`[record] ${msg}\n`) }
 function fail (msg) { log(`FAILED: ${msg}`); process.exit(1) }
 const sleep = (ms) => new Promise(resolve => setTimeout(resolve, ms))
 
-// ---------------------------------------------------------------------------------------------
-// Deterministic RNG (mulberry32 over a string hash): the shared draws are identical on both bots.
-// ---------------------------------------------------------------------------------------------
-function rngFrom (text) {
-  let h = 1779033703 ^ text.length
-  for (let i = 0; i < text.length; i++) { h = Math.imul(h ^ text.charCodeAt(i), 3432918353); h = (h << 13) | (h >>> 19) }
-  let a = h >>> 0
-  return () => {
-    a = (a + 0x6D2B79F5) | 0
-    let t = Math.imul(a ^ (a >>> 15), 1 | a)
-    t = (t + Math.imul(t ^ (t >>> 7), 61 | t)) ^ t
-    return ((t ^ (t >>> 14)) >>> 0) / 4294967296
-  }
-}
-const xzDist = (a, b) => Math.hypot(a.x - b.x, a.z - b.z)
-const uniform = (rng, lo, hi) => lo + (hi - lo) * rng()
-
 // The episode choreographies (engine-spec §5-§6) and the spawn/item plan live in episodes.js.
 const { EPISODES, EVAL_TYPES, planEpisode, yawTo, pitchTo } = require('./episodes')
 
 // ---------------------------------------------------------------------------------------------
 // Bots, views and the tick loop
 // ---------------------------------------------------------------------------------------------
-function makeBot (name) {
-  const bot = mineflayer.createBot({ host: cfg.host, port: cfg.port, username: name, auth: 'offline', version: cfg.version, viewDistance: 'tiny' })
-  bot.on('kicked', (reason) => fail(`${name} kicked: ${JSON.stringify(reason)}`))
-  bot.on('error', (err) => fail(`${name} error: ${err && err.stack ? err.stack : err}`))
-  return bot
-}
-
-function makeView (bot) {
-  const w = cfg.renderWidth; const h = cfg.renderHeight
-  const canvas = createCanvas(w, h)
-  const renderer = new THREE.WebGLRenderer({ canvas })
-  const viewer = new Viewer(renderer)
-  if (!viewer.setVersion(cfg.version)) throw new Error(`prismarine-viewer does not support ${cfg.version}`)
-  viewer.camera.fov = cfg.fovDeg
-  viewer.camera.aspect = w / h
-  viewer.camera.updateProjectionMatrix()
-  const updateEntity = viewer.updateEntity.bind(viewer)
-  viewer.updateEntity = (e) => { delete e.username; updateEntity(e) } // name tags render as white boxes
-  const worldView = new WorldView(bot.world, cfg.viewDistance, bot.entity.position)
-  viewer.listen(worldView)
-  worldView.init(bot.entity.position)
-  worldView.listenToBot(bot)
-  bot.on('move', () => worldView.updatePosition(bot.entity.position))
-  const gl = renderer.getContext()
-  const pixels = new Uint8Array(w * h * 4)
-  return {
-    viewer,
-    render (pos, yaw, pitch, sneaking) {
-      viewer.camera.position.set(pos.x, pos.y + (sneaking ? SNEAK_EYE : EYE), pos.z)
-      viewer.camera.rotation.set(pitch, yaw, 0, 'ZYX')
-      viewer.update()
-      renderer.render(viewer.scene, viewer.camera)
-      gl.readPixels(0, 0, w, h, gl.RGBA, gl.UNSIGNED_BYTE, pixels)
-      return pixels
-    }
-  }
-}
-
-// flying-squid 1.12 writes entity_velocity (pvp knockback) as {velocity: {x, y, z}} but mineflayer 4.25
-// reads velocityX/Y/Z: without this a hit player's velocity, then position, become NaN.
-function readKnockback (bot) {
-  bot._client.prependListener('entity_velocity', (packet) => {
-    if (packet.velocityX === undefined && packet.velocity) {
-      Object.assign(packet, { velocityX: packet.velocity.x, velocityY: packet.velocity.y, velocityZ: packet.velocity.z })
-    }
-  })
-}
+// common.makeBot also fixes up flying-squid's knockback packets (entity_velocity)
+const makeBot = (name) => common.makeBot(cfg, name, fail)
+const makeView = (bot) => common.makeView(cfg, bot)
 
 // Apply one choreography intent (see episodes.js) to a bot on its physics tick. Once-events land in
 // `pending` (read and reset by the tick's row): hotbar on the key press, attack on the swing,
@@ -166,7 +97,6 @@ async function main () {
   const bots = []
   for (const name of names) {
     const bot = makeBot(name)
-    readKnockback(bot)
     await new Promise((resolve) => bot.once('spawn', resolve))
     bots.push(bot)
   }
@@ -320,8 +250,10 @@ async function main () {
   setTimeout(() => process.exit(0), 200)
 }
 
-process.on('SIGTERM', () => process.exit(143))
-process.on('SIGINT', () => process.exit(130))
-process.stdin.on('end', () => process.exit(1)) // the supervisor died
-process.stdin.resume()
-main().catch(err => fail(err && err.stack ? err.stack : String(err)))
+if (require.main === module) {
+  process.on('SIGTERM', () => process.exit(143))
+  process.on('SIGINT', () => process.exit(130))
+  process.stdin.on('end', () => process.exit(1)) // the supervisor died
+  process.stdin.resume()
+  main().catch(err => fail(err && err.stack ? err.stack : String(err)))
+}
