@@ -320,7 +320,7 @@ def minecraft_jobs(args) -> list[Job]:
 
 
 def cmd_collect_minecraft(args) -> int:
-    """``collect --backend minecraft``: episodes run one after another on one server (flat world only)."""
+    """``collect --backend minecraft``: episodes run one after another, each on a fresh flat world (the server restarts)."""
     from solaris_env.engine.minecraft.collect import MinecraftSession
     from solaris_env.engine.recorder import clean_staging, episode_complete
 

@@ -117,3 +117,14 @@ def test_frames_from_rgba_flips_and_resamples():
     assert out[:, -1].min() == 255 and out[:, 0].max() == 0
     with pytest.raises(ValueError, match="whole number"):
         frames_from_rgba(f.tobytes()[:-1], rh, rw, 8, 8)
+
+
+def test_edit_events_tables_in_tick_then_bot_order():
+    from solaris_env.engine.minecraft.records import edit_events
+
+    rows = {"Alpha": [row(0), row(1, events={"placed": [[1, 5, 2, "oak_planks"]], "hits": ["Bravo"]}), row(2)],
+            "Bravo": [row(0, events={"mined": [[3, 4, 3, "grass_block"]]}), row(1), row(2, events={"hits": ["Alpha"]})]}
+    blocks, hits = edit_events(rows, 2)  # tick 2 is past num_ticks
+    assert blocks == {"tick": [0, 1], "player": ["Bravo", "Alpha"], "action": ["mine", "place"], "x": [3, 1],
+                      "y": [4, 5], "z": [3, 2], "block": ["grass_block", "oak_planks"]}
+    assert hits == {"tick": [1], "attacker": ["Alpha"], "victim": ["Bravo"]}

@@ -308,12 +308,14 @@ function * placeBelow (ctx, item, pitch = -PITCH_LIMIT, timeoutS = 2) {
   if (!isSolid(ctx, x, y - 1, z) || isSolid(ctx, x, y + 2, z) || isSolid(ctx, x, y, z)) return false
   yield * select(ctx, item)
   yield * look(ctx, me(ctx).yaw, pitch, EVAL_DPS)
-  let used = false
+  let used = false; let clearTicks = 0
   for (let t = 0; t < ticks(timeoutS); t++) {
     if (blockName(ctx, x, y, z) === item) break
-    const clear = me(ctx).position.y > y + 1 + 1e-6
+    // The server checks the feet against the last position mineflayer sent (up to a tick old): click on
+    // the second tick with the feet out of the cell.
+    clearTicks = me(ctx).position.y > y + 1 + 1e-6 ? clearTicks + 1 : 0
     const intent = { controls: { jump: me(ctx).onGround && !used } }
-    if (clear && !used) { intent.place = { ref: new Vec3(x, y - 1, z), face: new Vec3(0, 1, 0) }; used = true }
+    if (clearTicks >= 2 && !used) { intent.place = { ref: new Vec3(x, y - 1, z), face: new Vec3(0, 1, 0) }; used = true }
     yield intent
   }
   for (let t = 0; t < 12 && !me(ctx).onGround; t++) yield { controls: {} }

@@ -67,10 +67,18 @@ function applyIntent (bot, name, intent, pending, dig) {
   if (intent.place) {
     const ref = bot.blockAt(intent.place.ref)
     const dest = intent.place.ref.plus(intent.place.face)
+    pending.clicks++
     if (ref && bot.heldItem) {
-      bot.once(`blockUpdate:${dest}`, (oldB, newB) => {
-        if (newB && newB.name !== 'air') { pending.place_block = 1; pending.placed.push([dest.x, dest.y, dest.z, newB.name]) }
-      })
+      // One watcher per cell: a click the server ignored must not count a later block there twice.
+      const key = `blockUpdate:${dest}`
+      if (pending.watchers.has(key)) bot.removeListener(key, pending.watchers.get(key))
+      const watch = (oldB, newB) => {
+        if (!newB || newB.name === 'air') return
+        bot.removeListener(key, watch); pending.watchers.delete(key)
+        pending.place_block = 1; pending.placed.push([dest.x, dest.y, dest.z, newB.name])
+      }
+      pending.watchers.set(key, watch)
+      bot.on(key, watch)
       bot._genericPlace(ref, intent.place.face, { forceLook: 'ignore', swingArm: 'right' })
         .catch(err => log(`${name}: place at ${dest} failed: ${err.message}`))
     }
@@ -134,7 +142,7 @@ async function main () {
   const board = {} // barrier payloads and posts, shared by both choreographies
   const states = bots.map((bot, i) => {
     const name = names[i]; const other = names[1 - i]
-    const pending = { attack: 0, place_block: 0, hotbar: null, placed: [], mined: [], hits: [] } // events since the previous row
+    const pending = { attack: 0, place_block: 0, hotbar: null, placed: [], mined: [], hits: [], clicks: 0, watchers: new Map() } // events since the previous row
     let digs = 0 // digs in progress (mine is sustained while > 0)
     const ctx = {
       bot, name, other, sortedNames, isLower: name === sortedNames[0], episode: cfg.episode, tick: -1,
@@ -237,7 +245,7 @@ async function main () {
   setTimeout(onClock, TICK_MS)
   await done
   const info = {
-    episodeType, episode: cfg.episode, seed: cfg.seed, names, isEval: EVAL_TYPES.has(episodeType), summary: Object.fromEntries(states.map(s => [s.name, s.ctx.summary])),
+    episodeType, episode: cfg.episode, seed: cfg.seed, names, isEval: EVAL_TYPES.has(episodeType), summary: Object.fromEntries(states.map(s => [s.name, { ...s.ctx.summary, placeClicks: s.pending.clicks }])),
     renderWidth: cfg.renderWidth, renderHeight: cfg.renderHeight, fovDeg: cfg.fovDeg, eyeHeight: EYE,
     aborted: states.some(s => !s.finished), abortReason: abortReason || (states.some(s => !s.finished) ? `episode exceeded maxTicks=${cfg.maxTicks}` : ''),
     bots: Object.fromEntries(states.map(s => [s.name, { frames: s.t, bursts: s.bursts, startTick: s.ctx.startTick, evalMetadata: s.ctx.evalMetadata }]))
