@@ -196,7 +196,8 @@ class MinecraftSession:
             gt = ground_truth({n: records[n][:T] for n in names}, (height, width), info["fovDeg"], DISPLAY_ASPECT)
             gt["blocks"], gt["hits"] = edit_events(rows, T)
             gt["backend"] = {"name": "minecraft", "version": MINECRAFT_VERSION, "catchup_ticks": bursts,
-                             "render_size": [rh, rw], "summary": info.get("summary", {})}
+                             "render_size": [rh, rw], "summary": info.get("summary", {}),
+                             "look_resets": {n: info["bots"][n].get("lookResets", 0) for n in names}}
             frames_PTHW3 = np.stack([f[:T] for f in frames])
             write_episode(out, key, output, frames_PTHW3, gt, split)
             return {"ticks": T, "aborted": aborted, "abort_reason": reason, "catchup_ticks": bursts,

@@ -26,7 +26,7 @@ const EYE = 1.62
 const SNEAK_EYE = 1.27
 const LOOK_STEP_DEG = 0.15 // mineflayer's mouse grid
 const PITCH_LIMIT = Math.PI / 2
-const EVAL_DPS = 171.8873 // 3 rad/s, constant rate, no easing
+const EVAL_DPS = 3 * 180 / Math.PI // 171.8873 deg/s = 3 rad/s, constant rate, no easing (as the voxel engine)
 const CAMERA_DPS = 60 // lookAtSmooth
 const BOT_LOOK_DPS = 90 // lookAtBot
 const FAST_LOOK_DPS = 180 // randomized, hence clipped to <= 171 deg/s

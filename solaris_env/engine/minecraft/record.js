@@ -120,8 +120,13 @@ async function main () {
   bots.forEach((b, i) => { for (const [item, count] of plan.items[names[i]]) b.chat(`/give ${names[i]} ${item} ${count}`) })
   const hasItems = (b, i) => plan.items[names[i]].every(([item]) => b.inventory.items().some(it => it.name === item))
   const deadline = Date.now() + 15000
-  while (!bots.every((b, i) => b.players[names[1 - i]] && b.players[names[1 - i]].entity && hasItems(b, i) &&
-    xzDist(b.entity.position, { x: spots[i][0] + 0.5, z: spots[i][1] + 0.5 }) < 0.1)) {
+  const atSpot = (b, i) => xzDist(b.entity.position, { x: spots[i][0] + 0.5, z: spots[i][1] + 0.5 }) < 0.1
+  let retp = Date.now() + 2000 // flying-squid's delayed login position can undo a /tp sent right after spawn
+  while (!bots.every((b, i) => b.players[names[1 - i]] && b.players[names[1 - i]].entity && hasItems(b, i) && atSpot(b, i))) {
+    if (Date.now() > retp) {
+      bots.forEach((b, i) => { if (!atSpot(b, i)) { log(`${names[i]} is not at its spot yet: /tp again`); b.chat(`/tp ${spots[i][0]} ${SURFACE_Y} ${spots[i][1]}`) } })
+      retp = Date.now() + 2000
+    }
     if (Date.now() > deadline) fail(`bots did not see each other / reach their spawn spots / get their items within 15 s: ${JSON.stringify(bots.map((b, i) => ({ pos: b.entity.position, spot: spots[i], seesOther: !!(b.players[names[1 - i]] && b.players[names[1 - i]].entity), items: b.inventory.items().map(it => it.name) })))}`)
     await sleep(100)
   }
@@ -154,48 +159,62 @@ async function main () {
     const apply = (intent) => applyIntent(bot, name, intent, pending, { start: () => digs++, end: () => digs-- })
     const script = (function * () { for (let k = 0; k < PRE_ROLL_TICKS; k++) yield { controls: {} }; yield * EPISODES[episodeType](ctx) })()
     return {
-      name, ctx, script, pending, apply, waiting: null, finished: false, stopped: false, t: 0, lastMs: null, bursts: 0,
+      name, ctx, script, pending, apply, waiting: null, finished: false, stopped: false, t: 0, lastMs: null, bursts: 0, look: null, lookResets: 0,
       fd: fs.openSync(path.join(cfg.outDir, `${name}.rgba`), 'w'),
       rows: fs.openSync(path.join(cfg.outDir, `${name}.jsonl`), 'w')
     }
   })
-  let stopAt = null
+  bots.forEach((b, i) => b._client.on('position', (p) => {
+    log(`${names[i]}: position packet from the server at tick ${states[i].t} (yaw ${p.yaw}, pitch ${p.pitch}, flags ${JSON.stringify(p.flags)})`)
+  }))
   let abortReason = ''
   let resolveDone
   const done = new Promise(resolve => { resolveDone = resolve })
 
-  function onTick (i) {
+  // The choreography's intent for bot i on its tick s.t (the state s_t is what it reads), before rendering:
+  // a tick on which every choreography has ended (or one gave up) is not recorded at all.
+  function decide (i) {
     const s = states[i]; const bot = bots[i]; const ctx = s.ctx
-    if (s.stopped) return
-    const now = performance.now()
+    // flying-squid answers some moves with a position packet whose yaw/pitch are its byte-encoded angles
+    // read as degrees (a jump of up to ~20 deg that the player never made): keep the commanded camera, so
+    // the recorded camera deltas sum to the view's rotation.
+    if (s.look && (bot.entity.yaw !== s.look.yaw || bot.entity.pitch !== s.look.pitch)) {
+      s.lookResets++
+      log(`${s.name} tick ${s.t}: the server turned the camera (${(bot.entity.yaw - s.look.yaw).toFixed(4)}, ${(bot.entity.pitch - s.look.pitch).toFixed(4)} rad); restored`)
+      bot.entity.yaw = s.look.yaw; bot.entity.pitch = s.look.pitch
+    }
+    ctx.tick = s.t
+    // A barrier releases every bot on the tick after the last one reached it (the same tick for all).
+    if (s.waiting && arrived[s.waiting].completeTick !== undefined && arrived[s.waiting].completeTick < s.t) s.waiting = null
+    if (s.waiting || s.finished) return { controls: {} }
+    let r
+    try { r = s.script.next() } catch (err) { // the choreography gave up: the episode aborts for both bots
+      log(`${s.name} aborts the episode: ${err && err.stack ? err.stack : err}`)
+      abortReason = abortReason || `${s.name}: ${err && err.message ? err.message : err}`
+      r = { done: true }
+    }
+    if (r.done) { s.finished = true; return { controls: {} } }
+    if (r.value.barrier) {
+      s.waiting = r.value.barrier
+      if (!arrived[s.waiting]) arrived[s.waiting] = new Set()
+      arrived[s.waiting].add(s.name)
+      if (arrived[s.waiting].size === bots.length) arrived[s.waiting].completeTick = s.t
+      return { controls: {} }
+    }
+    return r.value
+  }
+
+  // Tick s.t of bot i: render the state s_t, apply the intent, write the raw row.
+  function record (i, intent, now) {
+    const s = states[i]; const bot = bots[i]; const ctx = s.ctx
     const dt = s.lastMs === null ? null : now - s.lastMs
     if (dt !== null && dt < BURST_DT_MS) s.bursts++
     s.lastMs = now
     const pos = bot.entity.position.clone(); const yaw = bot.entity.yaw; const pitch = bot.entity.pitch
     const sneaking = bot.getControlState('sneak')
     fs.writeSync(s.fd, views[i].render(pos, yaw, pitch, sneaking))
-    // The choreography's intent for this tick.
-    ctx.tick = s.t; ctx.yaw = yaw; ctx.pitch = pitch
-    let intent = { controls: {} }
-    // A barrier releases every bot on the tick after the last one reached it (the same tick for all).
-    if (s.waiting && arrived[s.waiting].completeTick !== undefined && arrived[s.waiting].completeTick < s.t) s.waiting = null
-    if (!s.waiting && !s.finished) {
-      let r
-      try { r = s.script.next() } catch (err) { // the choreography gave up: the episode aborts for both bots
-        log(`${s.name} aborts the episode: ${err && err.stack ? err.stack : err}`)
-        abortReason = abortReason || `${s.name}: ${err && err.message ? err.message : err}`
-        r = { done: true }
-        if (stopAt === null) stopAt = Math.max(...states.map(x => x.t)) + 1
-      }
-      if (r.done) s.finished = true
-      else if (r.value.barrier) {
-        s.waiting = r.value.barrier
-        if (!arrived[s.waiting]) arrived[s.waiting] = new Set()
-        arrived[s.waiting].add(s.name)
-        if (arrived[s.waiting].size === bots.length) arrived[s.waiting].completeTick = s.t
-      } else intent = r.value
-    }
     s.apply(intent)
+    s.look = { yaw: bot.entity.yaw, pitch: bot.entity.pitch }
     const row = {
       t: s.t, x: pos.x, y: pos.y, z: pos.z, yaw, pitch, yaw_next: bot.entity.yaw, pitch_next: bot.entity.pitch,
       controls: Object.fromEntries(CONTROL_KEYS.map(k => [k, !!intent.controls[k]])),
@@ -208,13 +227,21 @@ async function main () {
     Object.assign(s.pending, { attack: 0, place_block: 0, hotbar: null, placed: [], mined: [], hits: [] })
     fs.writeSync(s.rows, JSON.stringify(row) + '\n')
     s.t++
-    if (stopAt === null && states.every(x => x.finished)) stopAt = Math.max(...states.map(x => x.t))
-    if (stopAt === null && s.t >= cfg.maxTicks) stopAt = s.t
-    if (stopAt !== null && s.t >= stopAt) {
-      s.stopped = true
-      fs.closeSync(s.fd); fs.closeSync(s.rows)
-      if (states.every(x => x.stopped)) resolveDone()
-    }
+  }
+
+  function stopAll () {
+    for (const s of states) { s.stopped = true; fs.closeSync(s.fd); fs.closeSync(s.rows) }
+    resolveDone()
+  }
+
+  // One tick of the episode for both bots (after the physics step).
+  function onTick () {
+    if (states[0].stopped) return
+    const intents = states.map((s, i) => decide(i))
+    if (abortReason || states.every(s => s.finished)) { stopAll(); return }
+    const now = performance.now()
+    states.forEach((s, i) => record(i, intents[i], now))
+    if (states[0].t >= cfg.maxTicks) stopAll()
   }
   // One 20 Hz clock drives both bots in lockstep (mineflayer's per-bot physics timers drift apart under
   // load): each tick steps Mineflayer's physics for every bot, then renders and acts for every bot, so
@@ -231,7 +258,7 @@ async function main () {
       const p = b.entity.position
       if (!Number.isFinite(p.x + p.y + p.z)) throw new Error(`${names[i]}'s position is not finite: ${p}`)
     })
-    bots.forEach((b, i) => onTick(i))
+    onTick()
   }
   function onClock () {
     let ran = 0
@@ -247,8 +274,8 @@ async function main () {
   const info = {
     episodeType, episode: cfg.episode, seed: cfg.seed, names, isEval: EVAL_TYPES.has(episodeType), summary: Object.fromEntries(states.map(s => [s.name, { ...s.ctx.summary, placeClicks: s.pending.clicks }])),
     renderWidth: cfg.renderWidth, renderHeight: cfg.renderHeight, fovDeg: cfg.fovDeg, eyeHeight: EYE,
-    aborted: states.some(s => !s.finished), abortReason: abortReason || (states.some(s => !s.finished) ? `episode exceeded maxTicks=${cfg.maxTicks}` : ''),
-    bots: Object.fromEntries(states.map(s => [s.name, { frames: s.t, bursts: s.bursts, startTick: s.ctx.startTick, evalMetadata: s.ctx.evalMetadata }]))
+    aborted: !!abortReason || states.some(s => !s.finished), abortReason: abortReason || (states.some(s => !s.finished) ? `episode exceeded maxTicks=${cfg.maxTicks}` : ''),
+    bots: Object.fromEntries(states.map(s => [s.name, { frames: s.t, bursts: s.bursts, lookResets: s.lookResets, startTick: s.ctx.startTick, evalMetadata: s.ctx.evalMetadata }]))
   }
   const tmp = path.join(cfg.outDir, `episode.json.tmp-${process.pid}`)
   fs.writeFileSync(tmp, JSON.stringify(info, null, 2))

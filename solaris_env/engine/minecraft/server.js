@@ -36,6 +36,17 @@ serv.on('newPlayer', (player) => {
   // Dug blocks drop nothing: the reference's player picks its drops up at once, and prismarine-viewer
   // draws item entities as magenta squares.
   player.on('dug', (data) => { data.dropBlock = false })
+  // flying-squid 1.12 resends the login position once the client first moves or turns (login.js), which
+  // undoes a /tp made right after spawning (a bot jumped back to its login spot mid-episode), and it
+  // writes its byte-encoded yaw/pitch (1/256 turns) as degrees. Skip that resend; send the angles in degrees.
+  player.sendSelfPosition = (newPosition) => {
+    if (newPosition) return // only the login/changeworld resends pass a position
+    const deg = (b) => b * 360 / 256
+    player._client.write('position', {
+      x: player.position.x, y: player.position.y, z: player.position.z,
+      yaw: deg(player.yaw || 0), pitch: deg(player.pitch || 0), flags: 0x00, teleportId: 1
+    })
+  }
 })
 
 serv.on('listening', (port) => {
