@@ -128,3 +128,30 @@ def test_edit_events_tables_in_tick_then_bot_order():
     assert blocks == {"tick": [0, 1], "player": ["Bravo", "Alpha"], "action": ["mine", "place"], "x": [3, 1],
                       "y": [4, 5], "z": [3, 2], "block": ["grass_block", "oak_planks"]}
     assert hits == {"tick": [1], "attacker": ["Alpha"], "victim": ["Bravo"]}
+
+
+def _collect_args(**kw):
+    import argparse
+
+    base = dict(out="/tmp/x", seed=0, eval=False, eval_types=None, types=None, episodes=4, instances=1,
+                instance_offset=0, test_fraction=0.0, resolution=(64, 64))
+    return argparse.Namespace(**{**base, **kw})
+
+
+def test_minecraft_jobs_cover_the_implemented_types_and_name_unknown_ones():
+    from solaris_env.engine.cli import minecraft_jobs
+    from solaris_env.engine.eval_protocol import EVAL_KEYS
+    from solaris_env.engine.minecraft.collect import EVAL_TYPES, SPAWN, TRAINING_TYPES
+
+    assert sorted(EVAL_TYPES) == sorted(EVAL_KEYS)  # all 7 eval types
+    assert set(TRAINING_TYPES) >= {"walkLook", "walkLookAway", "chase", "orbit", "straightLineWalk", "pvp",
+                                   "buildStructure", "buildTower", "placeAndMine", "mine"}
+    assert SPAWN["structureEval"] == (6.0, 6.0) and SPAWN["pvp"] == (8.0, 15.0)
+    jobs = minecraft_jobs(_collect_args(episodes=len(TRAINING_TYPES)))
+    assert [j.episode_type for j in jobs] == list(TRAINING_TYPES)
+    jobs = minecraft_jobs(_collect_args(eval=True, episodes=2))
+    assert sorted({j.eval_type for j in jobs}) == sorted(EVAL_TYPES) and len(jobs) == 2 * len(EVAL_TYPES)
+    with pytest.raises(SystemExit, match=r"training types \['pve'\] are not implemented"):
+        minecraft_jobs(_collect_args(types=["walkLook", "pve"]))
+    with pytest.raises(SystemExit, match=r"eval types \['nopeEval'\] are not implemented"):
+        minecraft_jobs(_collect_args(eval=True, eval_types=["nopeEval"]))

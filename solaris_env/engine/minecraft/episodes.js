@@ -284,7 +284,7 @@ function * stepAway (ctx, point, dist = 1.2, timeoutS = 1.5) {
   return false
 }
 /** Place `item` at `cell` against a solid neighbour's face; true when the block stands there. */
-function * placeAt (ctx, cell, item, { attempts = 3, approach = true, sneak = false } = {}) {
+function * placeAt (ctx, cell, item, { attempts = 3, approach = true, sneak = false, settleTicks = 0 } = {}) {
   const [x, y, z] = cell
   const centre = new Vec3(x + 0.5, y + 0.5, z + 0.5)
   for (let a = 0; a < attempts; a++) {
@@ -297,6 +297,7 @@ function * placeAt (ctx, cell, item, { attempts = 3, approach = true, sneak = fa
     const [sx, sy, sz] = sf.support; const [nx, ny, nz] = sf.normal
     const face = new Vec3(sx + 0.5 + nx * 0.5, sy + 0.5 + ny * 0.5, sz + 0.5 + nz * 0.5)
     yield * lookAt(ctx, face, EVAL_DPS, { controls: { sneak } })
+    yield * idle(ctx, settleTicks, { sneak })
     yield { controls: { sneak }, place: { ref: new Vec3(sx, sy, sz), face: new Vec3(nx, ny, nz) } }
     for (let t = 0; t < 6 && blockName(ctx, x, y, z) !== item; t++) yield { controls: { sneak } } // server round trip
   }
@@ -706,6 +707,7 @@ function * bothLookAwayEval (ctx) {
   yield * lookAway(ctx, 'both_look_away', ctx.sortedNames)
 }
 
+const LOOK_SETTLE_TICKS = 18 // structureEval: the reference waits this long after looking before it clicks
 const STRUCTURE_OFFSETS = {
   wall_2x2: [[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]],
   wall_4x1: [[0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0]],
@@ -738,7 +740,7 @@ function * structureEval (ctx) {
       xzDist(new Vec3(b[0] + 0.5, 0, b[2] + 0.5), p) - xzDist(new Vec3(a[0] + 0.5, 0, a[2] + 0.5), p) || a[0] - b[0])
     for (const c of order) { // stand one block in front (-z) of the cell, look at the top of its support, click
       yield * nudgeTo(ctx, new Vec3(c[0] + 0.5, 0, c[2] - 1.0), 3)
-      yield * placeAt(ctx, c, 'stone', { attempts: 5, approach: false, sneak: true })
+      yield * placeAt(ctx, c, 'stone', { attempts: 5, approach: false, sneak: true, settleTicks: LOOK_SETTLE_TICKS })
       yield * idle(ctx, 4)
     }
   } else yield * idle(ctx, cells.length * 4)
@@ -827,4 +829,4 @@ function planEpisode (type, cfg, rng) {
   return { spots, items, layout }
 }
 
-module.exports = { EPISODES, EVAL_TYPES, planEpisode, yawTo, pitchTo, wrapPi, EYE, SNEAK_EYE, EPISODE_MIN_TICKS }
+module.exports = { EPISODES, EVAL_TYPES, planEpisode, rotationProfile, yawTo, pitchTo, wrapPi, EYE, SNEAK_EYE, EPISODE_MIN_TICKS }
