@@ -26,7 +26,7 @@ import jax.numpy as jnp
 from flax import nnx
 
 from solaris_env.world_model import kv_cache
-from solaris_env.world_model.attention import RMSNorm, attention, dense, stop_gradient_where
+from solaris_env.world_model.attention import RMSNorm, attention, attention_heads_major, dense, stop_gradient_where
 from solaris_env.world_model.config import WorldModelConfig
 from solaris_env.world_model.rope import apply_rope
 
@@ -172,7 +172,7 @@ class ActionModule(nnx.Module):
 
     def decode(self, x_BFLD: jax.Array, mouse_BFWA: jax.Array, keyboard_BFWA: jax.Array, angles_FJ: jax.Array,
                cache_mouse: kv_cache.KVCache, cache_keyboard: kv_cache.KVCache, keep: int | None = None):
-        """F new frames against the rolling caches (mouse (B*L, W, N, K), keyboard (B, W, N, K)).
+        """F new frames against the rolling caches, heads-major (mouse (B*L, N, W, K), keyboard (B, N, W, K)).
 
         Frame f attends to the cache slots still valid after f + 1 frames are appended and to the new
         frames <= f (for F = 1: the cache with the frame appended). Returns (x_BFLD, new_cache_mouse,
@@ -182,17 +182,18 @@ class ActionModule(nnx.Module):
         keep = f if keep is None else keep
 
         def attend(q, k_new, v_new, cache, repeat):
-            # (F, W + F) mask over [cache slots ; new frames], one row per query frame
-            mask = jnp.concatenate([jnp.stack([kv_cache.kept_mask(cache, i + 1) for i in range(f)], axis=-2),
-                                    jnp.broadcast_to(jnp.tril(jnp.ones((f, f), bool)),
-                                                     cache.length.shape + (f, f))], axis=-1)
-            k = jnp.concatenate([cache.k, k_new.astype(cache.k.dtype)], axis=1)
-            v = jnp.concatenate([cache.v, v_new.astype(cache.v.dtype)], axis=1)
-            if repeat > 1:
-                k, v = jnp.repeat(k, repeat, axis=0), jnp.repeat(v, repeat, axis=0)
-            if mask.ndim != 2:
+            # the caches are heads-major (B', N, W, K): the cache and the new frames are two key blocks of one
+            # softmax (no concatenation, no transposed copy of the cache); frame f sees the slots kept after
+            # f + 1 appends and the new frames <= f
+            if cache.length.ndim != 0:
                 raise ValueError(f"action caches take one fill level per layer; got length {cache.length.shape}")
-            return attention(q, k, v, mask, self.impl), kv_cache.update(cache, k_new[:, :keep], v_new[:, :keep])
+            kept = jnp.stack([kv_cache.kept_mask(cache, i + 1) for i in range(f)], axis=-2)  # (F, W)
+            causal = None if f == 1 else jnp.tril(jnp.ones((f, f), bool))
+            k_h, v_h = (a.transpose(0, 2, 1, 3).astype(cache.k.dtype) for a in (k_new, v_new))  # (B', N, F, K)
+            blocks = [(cache.k, cache.v, kept), (k_h, v_h, causal)]
+            if repeat > 1:
+                blocks = [(jnp.repeat(k, repeat, axis=0), jnp.repeat(v, repeat, axis=0), m) for k, v, m in blocks]
+            return attention_heads_major(q, blocks), kv_cache.update(cache, k_h[:, :, :keep], v_h[:, :, :keep])
 
         q, k, v = self._mouse_qkv(x_BFLD, mouse_BFWA, angles_FJ)
         attn, cache_mouse = attend(q, k, v, cache_mouse, 1)

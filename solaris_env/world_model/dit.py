@@ -195,6 +195,17 @@ class ContextKV(NamedTuple):
     """
     k_LBPNMK: jax.Array  # (layers, B, P, N, M, K): normed keys, heads-major (read by the dots as they are)
     v_LBPNMK: jax.Array  # (layers, B, P, N, M, K)
+    # or, for the per-layer streaming path (``layers=``), each field a tuple of per-layer (B, P, N, M, K)
+    # arrays (``unstack``): a pass then reads each layer's K/V in place instead of slicing a stacked array
+
+    def unstack(self) -> "ContextKV":
+        return ContextKV(*(tuple(a[i] for i in range(a.shape[0])) for a in self))
+
+    @property
+    def shape(self) -> tuple[int, ...]:
+        """The stacked (layers, B, P, N, M, K) shape of the keys, for either form."""
+        k = self.k_LBPNMK
+        return (len(k),) + k[0].shape if isinstance(k, tuple) else k.shape
 
 
 class _SequencePlan(NamedTuple):
@@ -612,10 +623,12 @@ class WorldDiT(nnx.Module):
         b, p = x.shape[:2]
         want = (c.dit.num_layers, b, p, c.dit.num_heads, None, c.dit.head_dim)
         for name, a in (("context_kv.k", context_kv.k_LBPNMK), ("context_kv.v", context_kv.v_LBPNMK)):
-            if a.ndim != 6 or any(w is not None and g != w for g, w in zip(a.shape, want)):
-                raise ValueError(f"{name} has shape {a.shape}; expected (layers, B, P, N, M, K) = "
+            shapes = {(len(a),) + x.shape for x in a} if isinstance(a, tuple) else {a.shape}
+            shape = shapes.pop()
+            if shapes or len(shape) != 6 or any(w is not None and g != w for g, w in zip(shape, want)):
+                raise ValueError(f"{name} has shape {shape}; expected (layers, B, P, N, M, K) = "
                                  f"{tuple('M' if w is None else w for w in want)}")
-        context_shape = jax.ShapeDtypeStruct((b, p, context_kv.k_LBPNMK.shape[4], c.context_width), jnp.float32)
+        context_shape = jax.ShapeDtypeStruct((b, p, context_kv.shape[4], c.context_width), jnp.float32)
         self._validate(x, t, cond, context_shape, mouse, keyboard, expect_frames=num_frames)
         k, w = c.frames_per_step, c.action_window
         windows = lambda a: jnp.stack([a[:, :, k * f:k * f + w] for f in range(num_frames)], axis=2)
@@ -635,13 +648,25 @@ class WorldDiT(nnx.Module):
         if layers is not None:  # one module per layer, static indices (see decode_step_cached)
             if len(layers) != d.num_layers:
                 raise ValueError(f"layers has {len(layers)} blocks; the config has num_layers={d.num_layers}")
+            # a tuple of per-layer caches (``kv_cache.unstack``) is read and returned layer by layer: no
+            # strided per-layer slice of a stacked cache in every pass, no stacking copy after a commit
+            per_layer = isinstance(cache, tuple)
+            if per_layer and len(cache) != d.num_layers:
+                raise ValueError(f"cache has {len(cache)} layers; the config has num_layers={d.num_layers}")
             new_caches = []
             for i, block in enumerate(layers):
-                tokens, new_cache = block.decode(tokens, cond_in, angles, action_angles, i, _static_layer(cache, i),
-                                                 cross_kv_of(block, _static_layer(per_layer_kv, i)), keep=keep)
+                layer_cache = cache[i] if per_layer else _static_layer(cache, i)
+                layer_kv = tuple(a[i] for a in per_layer_kv)  # stacked arrays or per-layer tuples
+                tokens, new_cache = block.decode(tokens, cond_in, angles, action_angles, i, layer_cache,
+                                                 cross_kv_of(block, layer_kv), keep=keep)
                 new_caches.append(new_cache)
-            stacked = jax.tree.map(lambda *a: jnp.stack(a), *new_caches) if keep_cache else None
-            return self._unpatchify(self.head(tokens, e)), stacked
+            if not keep_cache:
+                new_caches = None
+            elif not per_layer:
+                new_caches = jax.tree.map(lambda *a: jnp.stack(a), *new_caches)
+            else:
+                new_caches = tuple(new_caches)
+            return self._unpatchify(self.head(tokens, e)), new_caches
 
         # Per-layer caches and context K/V are read with a dynamic index (and the caches written back
         # in place) instead of being scanned as xs/ys: under a vmap over worlds, scanned xs/ys would be

@@ -17,8 +17,8 @@ Three caches per DiT (``DiTCache``), each with one entry per layer:
 | cache | k / v shape | slots |
 |---|---|---|
 | self_attn | (layers, B, N, cache_tokens, K), heads-major | window * stream players * tokens per frame (post-RoPE k) |
-| mouse | (layers, B * P * tokens, window, Na, Ka) | one per frame, per spatial location |
-| keyboard | (layers, B * P, window, Na, Ka) | one per frame |
+| mouse | (layers, B * P * tokens, Na, window, Ka), heads-major | one per frame, per spatial location |
+| keyboard | (layers, B * P, Na, window, Ka), heads-major | one per frame |
 
 Mouse/keyboard caches exist for every layer (uniform scan) but only the first ``num_action_blocks``
 layers touch them; the others stay empty.
@@ -85,9 +85,22 @@ def init_cache(cfg: WorldModelConfig, batch: int, dtype=None) -> DiTCache:
         self_attn=empty_cache(layers, batch, cfg.cache_tokens, cfg.dit.num_heads, cfg.dit.head_dim, dtype,
                               layout="BNSK"),
         mouse=empty_cache(layers, batch * players * cfg.tokens_per_frame, cfg.dit.window, a.num_heads,
-                          a.head_dim, dtype),
-        keyboard=empty_cache(layers, batch * players, cfg.dit.window, a.num_heads, a.keyboard_head_dim, dtype),
+                          a.head_dim, dtype, layout="BNSK"),
+        keyboard=empty_cache(layers, batch * players, cfg.dit.window, a.num_heads, a.keyboard_head_dim, dtype,
+                             layout="BNSK"),
     )
+
+
+def unstack(cache: DiTCache) -> tuple[DiTCache, ...]:
+    """Stacked caches (leaves (layers, ...)) -> one ``DiTCache`` per layer, each its own buffers (what the
+    streaming ``WorldModel`` carries: a layer's attention then reads its cache in place)."""
+    layers = cache.self_attn.length.shape[0]
+    return tuple(jax.tree.map(lambda a: a[i], cache) for i in range(layers))
+
+
+def stack(caches: tuple[DiTCache, ...]) -> DiTCache:
+    """Inverse of ``unstack``."""
+    return jax.tree.map(lambda *a: jnp.stack(a), *caches)
 
 
 def update(cache: KVCache, k_new: jax.Array, v_new: jax.Array) -> KVCache:

@@ -158,9 +158,9 @@ class WorldState:
     frame_index_B: jax.Array  # (B,) int32: index of the next latent frame = its RoPE start frame
     actions_BPWA: jax.Array  # (B, P, W, A) f32: the last W actions (the left-padded history)
     context_BPMC: jax.Array  # (B, P, M, Ce): image-encoder tokens of the first frames
-    context_kv: ContextKV  # their cross-attention K/V for every DiT layer, leaves (B, layers, 1, P, N, M, K)
+    context_kv: ContextKV  # their cross-attention K/V, one (B, 1, P, N, M, K) array per DiT layer (``ContextKV.unstack``)
     cond_BPFhwC: jax.Array  # (B, P, Fc, h, w, Cc): conditioning of latent frames 0..Fc-1 (last = steady)
-    dit_cache: kv_cache.DiTCache  # rolling caches of the committed frames (all but the last), leaves (B, layers, 1, ...)
+    dit_cache: tuple  # per-layer rolling caches of the committed frames (all but the last): one DiTCache per layer, leaves (B, 1, ...)
     vae_cache: Any  # streaming VAE-decoder cache, leaves (B, P, ...)
     latent_BP1hwC: jax.Array  # (B, P, 1, h, w, C) f32: the last generated latent frame (the next step commits it)
     frame0_BPHW3: jax.Array  # (B, P, H, W, 3) uint8: latent frame 0 decoded (set by init / reset)
@@ -327,11 +327,11 @@ class Programs:
         dit, layers, vae, encoder = self._modules(params)
         first = frames_to_model(first_PHW3_uint8)
         context = encoder(first)  # (P, M, Ce)
-        context_kv = dit.context_kv(to_stream(cfg, context[None]), layers)  # leaves (layers, 1, P, N, M, K)
+        context_kv = dit.context_kv(to_stream(cfg, context[None]), layers).unstack()  # per layer (1, P, N, M, K)
         dit = (dit, layers)
         cond = self._cond_table(vae, first)
         actions = jnp.repeat(first_actions_PA.astype(jnp.float32)[:, None], cfg.action_window, axis=1)
-        cache = kv_cache.init_cache(cfg, 1)  # batch 1: the DiT sees one world at a time
+        cache = kv_cache.unstack(kv_cache.init_cache(cfg, 1))  # batch 1: the DiT sees one world at a time
         start = jnp.zeros((), jnp.int32)
         parts = (cond[:, :1], context_kv, actions, cache)
         key, frame_key = jax.random.split(key)

@@ -84,8 +84,8 @@ def test_init_cache_shapes_for_solaris(method, players):
     p = players if method == "attn" else 1
     assert cache.self_attn.k.shape == (30, 3, 12, 6 * p * 880, 128)  # heads-major
     assert cache.self_attn.size == 6 * p * 880
-    assert cache.mouse.k.shape == (30, 3 * p * 880, 6, 16, 64)
-    assert cache.keyboard.v.shape == (30, 3 * p, 6, 16, 64)
+    assert cache.mouse.k.shape == (30, 3 * p * 880, 16, 6, 64)  # heads-major
+    assert cache.keyboard.v.shape == (30, 3 * p, 16, 6, 64)
     assert cache.self_attn.length.shape == (30,) and cache.self_attn.length.dtype == jnp.int32
     assert cfg.cache_tokens == 6 * p * 880
 

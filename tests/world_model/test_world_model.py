@@ -117,7 +117,7 @@ def test_concat_variant_streams():
     state = model_c.init(first_frames(model_c, batch=1), 0)
     frames, state = model_c.step(state, random_actions(model_c, 1, 1)[0])
     assert frames.shape == (1, 2, 4, 32, 32, 3) and frames.dtype == jnp.uint8
-    assert state.dit_cache.self_attn.size == model_c.config.cache_tokens  # one stream player
+    assert state.dit_cache[0].self_attn.size == model_c.config.cache_tokens  # one stream player
     assert np.isfinite(np.asarray(state.latent_BP1hwC)).all()
 
 
@@ -150,7 +150,7 @@ def test_memory_flat_and_step_compiles_once(model):
     assert model._step_fn._cache_size() == compiled == 1
     np.testing.assert_array_equal(state.frame_index_B, [21, 21])
     # the cache saturates at the window: every slot valid, shapes unchanged
-    assert (np.asarray(state.dit_cache.self_attn.length) == model.config.cache_tokens).all()
+    assert (np.asarray([c.self_attn.length for c in state.dit_cache]) == model.config.cache_tokens).all()
 
 
 def test_unrolled_programs_compute_the_same_step(model):
