@@ -42,7 +42,8 @@ def test_spawn_plans_and_items():
     assert {"oak_planks", "bricks", "dirt", "smooth_sandstone"} <= {i for i, _ in pam["items"]["Alpha"]}
     pvp = _node(f"E.planEpisode('pvp', {cfg}, Math.random)")
     for name in ("Alpha", "Bravo"):
-        assert pvp["items"][name][-1] == [pvp["layout"]["swords"][name], 1] and pvp["items"][name][-1][0].endswith("_sword")
+        sword = pvp["layout"]["swords"][name]
+        assert pvp["items"][name][-1] == [sword, 1] and sword.endswith("_sword")
     assert sorted(_node("[...E.EVAL_TYPES]")) == sorted(["rotationEval", "translationEval", "oneLooksAwayEval",
                                                          "bothLookAwayEval", "structureEval", "turnToLookEval",
                                                          "turnToLookOppositeEval"])

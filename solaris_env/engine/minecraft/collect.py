@@ -137,7 +137,7 @@ class MinecraftSession:
         self.sup.close()
 
     def run_recorder(self, scratch: Path, episode_type: str, episode: int, seed: int, height: int,
-                     timeout_s: float = EPISODE_TIMEOUT_S, max_ticks: int = MAX_TICKS) -> dict:
+                     instance: int = 0, timeout_s: float = EPISODE_TIMEOUT_S, max_ticks: int = MAX_TICKS) -> dict:
         """Run record.js into ``scratch``; returns episode.json's content."""
         if self.world_used or not self.server.alive():
             self.fresh_world()
@@ -145,7 +145,8 @@ class MinecraftSession:
         rh, rw = render_size(height, height)
         lo, hi = SPAWN.get(episode_type, DEFAULT_SPAWN)
         cfg = {"host": "127.0.0.1", "port": self.port, "version": MINECRAFT_VERSION, "names": ["Alpha", "Bravo"],
-               "episodeType": episode_type, "episode": episode, "seed": seed, "renderWidth": rw, "renderHeight": rh,
+               "episodeType": episode_type, "episode": episode, "instance": instance, "seed": seed,
+               "renderWidth": rw, "renderHeight": rh,
                "viewDistance": self.view_distance, "spawnMin": lo, "spawnMax": hi, "maxTicks": max_ticks,
                "fovDeg": FOV_DEG, "outDir": str(scratch)}
         env = dict(os.environ, DISPLAY=self.display)
@@ -169,7 +170,8 @@ class MinecraftSession:
         staging.mkdir(parents=True, exist_ok=True)
         scratch = Path(tempfile.mkdtemp(prefix="mc-episode-", dir=staging))
         try:
-            info = self.run_recorder(scratch, episode_type, key.episode, seed, height, max_ticks=max_ticks)
+            info = self.run_recorder(scratch, episode_type, key.episode, seed, height, key.instance,
+                                     max_ticks=max_ticks)
             names = list(info["names"])
             rows = {n: [json.loads(line) for line in (scratch / f"{n}.jsonl").read_text().splitlines()] for n in names}
             records = {n: build_records(rows[n], key.episode) for n in names}

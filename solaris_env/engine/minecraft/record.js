@@ -5,7 +5,7 @@
 // construction and tick t is the same game moment for both bots. The choreographies are episodes.js's.
 //
 // Usage: node record.js '<json config>'
-//   config: {host, port, version, names: [a, b], episodeType, episode, seed, renderWidth, renderHeight,
+//   config: {host, port, version, names: [a, b], episodeType, episode, instance, seed, renderWidth, renderHeight,
 //            viewDistance, spawnMin, spawnMax, maxTicks, warmupMs, outDir, smokeTicks (lookAtEachOther)}
 // Writes into outDir, per bot <name>.rgba (T frames of renderHeight x renderWidth x 4, bottom row first,
 // as gl.readPixels returns them) and <name>.jsonl (T raw tick rows, see `rawRow`), then episode.json;
@@ -24,7 +24,7 @@ const { EYE, BURST_DT_MS, CONTROL_KEYS, rngFrom, xzDist } = common
 
 const cfg = Object.assign({
   host: '127.0.0.1', port: 25565, version: '1.20.1', names: ['Alpha', 'Bravo'], episodeType: 'walkLook',
-  episode: 0, seed: 0, renderWidth: 228, renderHeight: 128, viewDistance: 4, spawnMin: 10, spawnMax: 15,
+  episode: 0, instance: 0, seed: 0, renderWidth: 228, renderHeight: 128, viewDistance: 4, spawnMin: 10, spawnMax: 15,
   maxTicks: 3600, warmupMs: 3000, fovDeg: 70, outDir: '.'
 }, JSON.parse(process.argv[2] || '{}'))
 
@@ -111,7 +111,7 @@ async function main () {
   log('both bots spawned')
   // The episode's plan (spawn spots around the origin, items, shared layout). Far teleports strand a bot
   // in unloaded chunks, so every episode plays near the origin on a fresh server (collect.py restarts it).
-  const place = rngFrom(`place_${cfg.seed}_${cfg.episode}`)
+  const place = rngFrom(`place_${cfg.seed}_${cfg.instance}_${cfg.episode}`)
   const plan = planEpisode(cfg.episodeType, cfg, place)
   const spots = plan.spots
   if (plan.layout.centre) plan.layout.centre = [plan.layout.centre[0], SURFACE_Y, plan.layout.centre[2]]
@@ -152,8 +152,9 @@ async function main () {
     const ctx = {
       bot, name, other, sortedNames, isLower: name === sortedNames[0], episode: cfg.episode, tick: -1,
       startTick: null, evalMetadata: {}, summary: {}, board, layout: plan.layout, smokeTicks: cfg.smokeTicks,
-      shared: rngFrom(`${cfg.seed + 12345}_${cfg.episode}`),
-      rng: rngFrom(`${cfg.seed + 12345}_${cfg.episode}_${name}`),
+      // the reference's seedrandom("<12345 + instance>_<N>"), as the voxel engine's runner
+      shared: rngFrom(`${cfg.seed + 12345 + cfg.instance}_${cfg.episode}`),
+      rng: rngFrom(`${cfg.seed + 12345 + cfg.instance}_${cfg.episode}_${name}`),
       digging: () => digs > 0
     }
     const apply = (intent) => applyIntent(bot, name, intent, pending, { start: () => digs++, end: () => digs-- })
