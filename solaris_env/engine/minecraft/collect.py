@@ -1,7 +1,8 @@
 """Record episodes on real Minecraft and write them in the voxel engine's Duet/eval layout.
 
-One :class:`MinecraftSession` (Xvfb + a flying-squid server on 127.0.0.1) serves a whole collect;
-each episode runs ``record.js`` (both bots and both views in one Node process) into a scratch dir,
+One :class:`MinecraftSession` (Xvfb + a flying-squid server on 127.0.0.1) serves a whole collect, the
+server restarted before each episode after the first (a fresh flat world, ~1 s); each episode runs
+``record.js`` (both bots and both views in one Node process, choreographies from ``episodes.js``) into a scratch dir,
 then the raw rows become Mineflayer records (:mod:`.records`), the RGBA frames become the requested
 ``H x W`` RGB video (rendered at the 16:9 display aspect and resampled, like the voxel engine's
 frames), and :func:`solaris_env.engine.recorder.write_episode` writes everything atomically.
@@ -199,7 +200,8 @@ class MinecraftSession:
             gt["blocks"], gt["hits"] = edit_events(rows, T)
             gt["backend"] = {"name": "minecraft", "version": MINECRAFT_VERSION, "catchup_ticks": bursts,
                              "render_size": [rh, rw], "summary": info.get("summary", {}),
-                             "look_resets": {n: info["bots"][n].get("lookResets", 0) for n in names}}
+                             "look_resets": {n: info["bots"][n].get("lookResets", 0) for n in names},
+                             "skipped_ticks": info.get("skippedTicks", 0)}
             frames_PTHW3 = np.stack([f[:T] for f in frames])
             write_episode(out, key, output, frames_PTHW3, gt, split)
             return {"ticks": T, "aborted": aborted, "abort_reason": reason, "catchup_ticks": bursts,

@@ -252,7 +252,7 @@ async function main () {
   const worlds = bots.map(b => ({ getBlock: (pos) => b.blockAt(pos, false) }))
   const physics = bots.map((b, i) => Physics(b.registry, worlds[i]))
   bots.forEach(b => { b.physicsEnabled = false }) // mineflayer keeps sending positions; we simulate
-  const clock = { t0: performance.now(), n: 0 }
+  const clock = { t0: performance.now(), n: 0, skipped: 0 } // skipped: ticks of wall time never played
   function gameTick () {
     bots.forEach((b, i) => {
       if (b.blockAt(b.entity.position) != null) physics[i].simulatePlayer(new PlayerState(b, b.controlState), worlds[i]).apply(b)
@@ -264,7 +264,12 @@ async function main () {
   function onClock () {
     let ran = 0
     while (performance.now() >= clock.t0 + (clock.n + 1) * TICK_MS) {
-      if (ran === MAX_CATCHUP_TICKS) { clock.n = Math.floor((performance.now() - clock.t0) / TICK_MS); break }
+      if (ran === MAX_CATCHUP_TICKS) {
+        const due = Math.floor((performance.now() - clock.t0) / TICK_MS)
+        if (!states[0].stopped) clock.skipped += due - clock.n
+        clock.n = due
+        break
+      }
       clock.n++; ran++
       try { gameTick() } catch (err) { fail(`tick ${clock.n}: ${err && err.stack ? err.stack : err}`) }
     }
@@ -274,7 +279,7 @@ async function main () {
   await done
   const info = {
     episodeType, episode: cfg.episode, seed: cfg.seed, names, isEval: EVAL_TYPES.has(episodeType), summary: Object.fromEntries(states.map(s => [s.name, { ...s.ctx.summary, placeClicks: s.pending.clicks }])),
-    renderWidth: cfg.renderWidth, renderHeight: cfg.renderHeight, fovDeg: cfg.fovDeg, eyeHeight: EYE,
+    renderWidth: cfg.renderWidth, renderHeight: cfg.renderHeight, fovDeg: cfg.fovDeg, eyeHeight: EYE, skippedTicks: clock.skipped,
     aborted: !!abortReason || states.some(s => !s.finished), abortReason: abortReason || (states.some(s => !s.finished) ? `episode exceeded maxTicks=${cfg.maxTicks}` : ''),
     bots: Object.fromEntries(states.map(s => [s.name, { frames: s.t, bursts: s.bursts, lookResets: s.lookResets, startTick: s.ctx.startTick, evalMetadata: s.ctx.evalMetadata }]))
   }
