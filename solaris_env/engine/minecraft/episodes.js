@@ -829,4 +829,4 @@ function planEpisode (type, cfg, rng) {
   return { spots, items, layout }
 }
 
-module.exports = { EPISODES, EVAL_TYPES, planEpisode, rotationProfile, yawTo, pitchTo, wrapPi, EYE, SNEAK_EYE, EPISODE_MIN_TICKS }
+module.exports = { EPISODES, EVAL_TYPES, COMMON_ITEMS, planEpisode, rotationProfile, yawTo, pitchTo, wrapPi, EYE, SNEAK_EYE, EPISODE_MIN_TICKS }
