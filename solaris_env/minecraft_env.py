@@ -15,6 +15,7 @@ from typing import Any, ClassVar
 import numpy as np
 from gymnasium.utils import seeding
 
+from solaris_env.engine.blocks import BY_NAME
 from solaris_env.engine.minecraft.collect import frames_from_rgba, render_size
 from solaris_env.engine.minecraft.records import (
     CONTROL_KEYS,
@@ -53,6 +54,14 @@ def _spawn_spots(rng: np.random.Generator, n: int, dmin: float, dmax: float) -> 
 def _facing(src: tuple[int, int], dst: tuple[int, int]) -> float:
     """Mineflayer yaw from block column ``src`` towards ``dst`` (yaw 0 = -Z, + = left)."""
     return math.atan2(-(dst[0] - src[0]), -(dst[1] - src[1]))
+
+
+def block_event(cell: list) -> tuple[int, int, int, int | str]:
+    """A bridge block event ``[x, y, z, minecraft name]`` -> the voxel env's ``(x, y, z, block id)``
+    (``engine.blocks.Block``); a block the voxel engine does not have keeps its Minecraft name."""
+    x, y, z, name = cell
+    block = BY_NAME.get(name)
+    return int(x), int(y), int(z), int(block) if block is not None else name
 
 
 def screen_of(pose: dict, other_feet: list[float] | None, height: int, width: int) -> dict:
@@ -152,6 +161,7 @@ class MinecraftParallelEnv(RealParallelEnv):
         self.view_chunks = max(2, math.ceil(view_distance / CHUNK))
         self.bridge = None  # started by the first reset
         self._poses: list[dict] | None = None  # every player's pose of the current frame
+        self._step_poses: list[list[dict]] = []  # every player's poses of the last step's ticks
 
     # -- reset / step -----------------------------------------------------------------------------
     def reset(self, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
@@ -199,6 +209,7 @@ class MinecraftParallelEnv(RealParallelEnv):
         self._frames = self._step_frames[:, -1]
         last_tick = [ticks[-1] for ticks in ticks_P]
         self._poses = [poses[-1] for poses in reply.poses_PT]
+        self._step_poses = reply.poses_PT
         infos = [self._info(i, reply.header, last_tick[i]) for i in range(self.num_players)]
         outcome = self.task.step(self._step_frames, per_player, truth=infos)
         return self._step_outputs(outcome.rewards_P, outcome.terminations_P, self._steps >= self.max_steps, infos)
@@ -234,7 +245,8 @@ class MinecraftParallelEnv(RealParallelEnv):
                 "truth_source": TRUTH_SOURCE}
         if header is not None:
             info["action_record"] = self._action_record(pose, last_action)
-            info["placed"], info["mined"] = [], []
+            info["placed"] = [block_event(c) for pose in self._step_poses[i] for c in pose["placed"]]
+            info["mined"] = [block_event(c) for pose in self._step_poses[i] for c in pose["mined"]]
             info["timing"] = {"tick": header["tick"], "idle_ticks": header["idleTicks"],
                               "idle_catchup_ticks": header["idleCatchup"], "catchup_ticks": header["catchup"],
                               "dropped_ticks": header["dropped"] + header["idleDropped"],
@@ -250,5 +262,6 @@ class MinecraftParallelEnv(RealParallelEnv):
         pressed = [k for k in range(1, 10) if action[f"hotbar.{k}"]]
         row = {"t": 0, "yaw": 0.0, "pitch": 0.0, "yaw_next": dyaw, "pitch_next": dpitch,
                "controls": {k: bool(action[k]) for k in CONTROL_KEYS},
-               "events": {"attack": int(pose["hit"]), "hotbar": pressed[0] if pressed else None}}
+               "events": {"attack": int(pose["hit"]), "place_block": int(bool(pose["placed"])), "mine": bool(pose["mine"]),
+                          "hotbar": pressed[0] if pressed else None}}
         return action_record(row)

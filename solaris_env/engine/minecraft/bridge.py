@@ -46,7 +46,7 @@ def tick_message(action: dict, camera_rad: tuple[float, float]) -> dict:
     ``camera_rad``: (dyaw, dpitch) in Mineflayer radians (``spaces.minerl_camera_to_mineflayer``)."""
     pressed = [k for k in range(1, 10) if action[f"hotbar.{k}"]]
     return {"controls": {k: bool(action[k]) for k in CONTROL_KEYS}, "dyaw": float(camera_rad[0]),
-            "dpitch": float(camera_rad[1]), "attack": int(action["attack"]),
+            "dpitch": float(camera_rad[1]), "attack": int(action["attack"]), "use": int(action["use"]),
             "hotbar": pressed[0] if pressed else None}  # several keys in one tick: the lowest wins (as the engine)
 
 
