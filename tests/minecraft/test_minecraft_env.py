@@ -184,3 +184,66 @@ def test_attack_hits_the_player_in_reach():
         assert pushed @ away / np.linalg.norm(away) > 0.5, "the hit player was not knocked back"
     finally:
         env.close()
+
+
+def _ground_in_front(info: dict) -> np.ndarray:
+    """The grass cell (y = 4, the superflat surface) one block in front of a player standing on it."""
+    fwd = np.array([-math.sin(info["yaw"]), 0.0, -math.cos(info["yaw"])])
+    cell = np.floor(info["pos"]) + np.round(fwd)
+    cell[1] = 4
+    return cell
+
+
+def _act(**keys) -> dict:
+    a = noop()
+    for k, v in keys.items():
+        a[k.replace("hotbar_", "hotbar.")] = v
+    return a
+
+
+def _until(env, action: dict, key: str, max_steps: int) -> tuple[int, dict, dict]:
+    """Step Alpha with ``action`` until its ``infos[key]`` is non-empty: (steps taken, obs, infos)."""
+    for n in range(1, max_steps + 1):
+        obs, _, _, _, infos = env.step({"Alpha": dict(action), "Bravo": noop()})
+        if infos["Alpha"][key]:
+            return n, obs, infos
+    raise AssertionError(f"no {key} event within {max_steps} steps: {infos['Alpha']}")
+
+
+@needs_minecraft
+@pytest.mark.timeout(300)
+def test_attack_digs_and_use_places_and_reset_restores_the_world():
+    from solaris_env.engine.blocks import Block
+
+    env = RealParallelEnv(backend="minecraft", resolution=SIZE)
+    try:
+        _, infos = env.reset(seed=0)
+        cell = _ground_in_front(infos["Alpha"])
+        # look at the top of the grass block in front (empty hand: the start kit leaves slot 5 empty)
+        obs, _, _, _, infos = env.step({"Alpha": _act(camera=_turn_to(infos["Alpha"], cell + [0.5, 1.0, 0.5])),
+                                        "Bravo": noop()})
+        obs, _, _, _, infos = _step(env)
+        before = obs["Alpha"].astype(int)
+        # by hand grass takes 0.9 s (hardness 0.6, as the recorder's mineflayer dig): mine is sustained meanwhile
+        steps, _, infos = _until(env, _act(attack=1), "mined", 40)
+        assert infos["Alpha"]["mined"] == [(*cell.astype(int).tolist(), int(Block.GRASS))]
+        assert 8 <= steps <= 25, steps  # ~18 ticks; fewer steps when the game ticked between steps
+        assert infos["Bravo"]["mined"] == [] and infos["Alpha"]["placed"] == []
+        for _ in range(5):  # the viewer meshes the changed chunk section
+            obs, _, _, _, infos = _step(env)
+        assert not infos["Alpha"]["action_record"]["mine"]
+        changed = np.abs(obs["Alpha"].astype(int) - before).mean()
+        assert changed > 1.0, f"the frame did not change after the dig (mean abs diff {changed:.2f})"
+        # hotbar.1 holds the kit's stone: use fills the hole
+        steps, _, infos = _until(env, _act(use=1, hotbar_1=1), "placed", 10)
+        assert infos["Alpha"]["placed"] == [(*cell.astype(int).tolist(), int(Block.STONE))]
+        assert infos["Alpha"]["action_record"]["place_block"] and steps <= 3, steps
+        # the same seed spawns the same way: the cell is grass again (reset restored it); a shovel digs it in
+        # 3 ticks
+        _, infos = env.reset(seed=0)
+        assert np.array_equal(_ground_in_front(infos["Alpha"]), cell)
+        env.step({"Alpha": _act(camera=_turn_to(infos["Alpha"], cell + [0.5, 1.0, 0.5]), hotbar_3=1), "Bravo": noop()})
+        steps, _, infos = _until(env, _act(attack=1), "mined", 10)
+        assert infos["Alpha"]["mined"] == [(*cell.astype(int).tolist(), int(Block.GRASS))] and steps <= 5, steps
+    finally:
+        env.close()

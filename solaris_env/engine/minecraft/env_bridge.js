@@ -213,6 +213,7 @@ function attackOrDig (i, attack) {
   if (!block.diggable || !Number.isFinite(bot.digTime(block))) { bot.swingArm(); return false } // bedrock
   const d = { pos: block.position.clone(), name: block.name, stateId: block.stateId }
   s.dig = d
+  if (process.env.SOLARIS_BRIDGE_DEBUG) log(`${cfg.names[i]} tick ${clock.tick}: dig ${d.name} at ${d.pos} holding ${bot.heldItem ? bot.heldItem.name : 'nothing'} (${bot.digTime(block)} ms)`)
   bot.dig(block, 'ignore')
     .then(() => {
       if (s.dig === d) s.dig = null
@@ -330,14 +331,20 @@ async function reset (req) {
   bots.forEach(b => b.setQuickBarSlot(EMPTY_HAND_SLOT))
   // a bot that wandered off (held keys between steps) comes back to chunks its viewer must mesh again
   const far = bots.some((b, i) => xzDist(b.entity.position, spots[i]) > FAR_TELEPORT_BLOCKS)
+  // the server's teleport (its position packet: mineflayer's forcedMove) must have arrived: a bot sent to the
+  // spot it stands on looks settled before it, then the late packet lifts it by 0.5 and resets its camera
+  const moved = bots.map(() => false)
+  const onMoved = bots.map((b, i) => () => { moved[i] = true })
+  bots.forEach((b, i) => b.once('forcedMove', onMoved[i]))
   bots.forEach((b, i) => b.chat(`/tp ${spots[i].x} ${spots[i].y} ${spots[i].z}`))
   bots[0].chat('/time set 6000')
   const at = (p, s) => xzDist(p, { x: s.x + 0.5, z: s.z + 0.5 }) < 0.1
   const deadline = Date.now() + TELEPORT_TIMEOUT_MS
-  const settled = () => bots.every((b, i) => at(b.entity.position, spots[i]) && b.entity.onGround &&
+  const settled = () => bots.every((b, i) => moved[i] && at(b.entity.position, spots[i]) && b.entity.onGround &&
     cfg.names.every((name, j) => j === i || (b.players[name] && b.players[name].entity && at(b.players[name].entity.position, spots[j]))))
   while (!settled()) {
     if (Date.now() > deadline) {
+      bots.forEach((b, i) => b.removeListener('forcedMove', onMoved[i]))
       throw new Error(`bots did not reach their spots / see each other within ${TELEPORT_TIMEOUT_MS} ms: ` +
         JSON.stringify(bots.map((b, i) => ({ pos: b.entity.position, spot: spots[i], onGround: b.entity.onGround }))))
     }
