@@ -116,18 +116,31 @@ class MinecraftParallelEnv(RealParallelEnv):
     Actions: ``forward back left right jump sneak sprint`` are held (mineflayer control states),
     ``camera`` turns the view (pitch clamped to +-90 degrees; mineflayer quantises turns to 0.15 degree
     mouse steps, ``action_record["camera"]`` is what was applied), ``hotbar.k`` selects slot k,
-    ``attack`` hits a player under the crosshair within 3 blocks (else swings the arm): knockback, no damage
-    (``server.js`` keeps health full, like the reference's resistance effect). Not available on
-    this backend (accepted, no effect): digging and placing blocks (``attack`` on a block, ``use``),
-    ``drop inventory ESC swapHands pickItem``; ``placed`` / ``mined`` infos are always empty.
+    ``attack`` hits a player under the crosshair within 3 blocks: knockback, no damage (``server.js`` keeps
+    health full, like the reference's resistance effect); else it digs the block under the crosshair within
+    4.5 blocks, as the recorder does (mineflayer's dig: the time follows the block's hardness and the held
+    tool, e.g. grass 18 ticks by hand, 3 with the shovel; bedrock never breaks; 5 ticks' pause after a
+    break). The dig goes on while ``attack`` stays pressed on the same block and stops on a step without it
+    (as the voxel engine: with ``ticks_per_step`` > 1 only the first tick presses it), on another target or a
+    hotbar change; it runs on mineflayer's timer, so the clock never waits for it, and the idle ticks between
+    steps do not stop it. ``use`` places the held block against the face under the crosshair (within 4.5
+    blocks, at most every 4 ticks, never into a player). Every player starts each episode with the
+    recorder's kit (``episodes.js`` ``COMMON_ITEMS``, given with ``/give``): 64 stone in slot 1, diamond
+    pickaxe, shovel and axe in slots 2-4, slot 5 (an empty hand) selected; ``reset`` refills it and puts
+    back every block dug or placed in the episode (``/setblock``). Not available (accepted, no effect):
+    ``drop inventory ESC swapHands pickItem``.
 
     Infos (per agent), the voxel env's keys where the server knows them: ``pos`` (feet), ``yaw`` (radians,
     [0, 2pi)), ``pitch`` of the frame's state (the bot's own pose, which the server accepts), ``step``,
     ``screen`` / ``sees`` (every other player's ``{"pixels", "u"}`` from its hitbox projected with the
     camera at the position this player's client knows, i.e. as rendered; a rectangle's area, no occlusion:
     ``truth_source`` says so), after a step ``action_record`` (the last tick's Mineflayer record),
-    ``placed`` / ``mined`` (empty), ``timing`` (``tick`` of the bridge clock, ``idle_ticks``,
-    ``idle_catchup_ticks``, ``catchup_ticks``, ``dropped_ticks``, ``late_ms`` per tick, ``realtime``).
+    ``placed`` / ``mined`` (the voxel env's ``(x, y, z, block id)`` tuples over the step's ticks, ids of
+    ``engine.blocks.Block``, a block it lacks by its Minecraft name: ``placed`` when the server's block update
+    for the clicked cell arrives, ``mined`` when the player's own dig finishes, which flying-squid always
+    accepts; events that land between steps go to the next step), ``timing`` (``tick`` of the bridge clock,
+    ``idle_ticks``, ``idle_catchup_ticks``, ``catchup_ticks``, ``dropped_ticks``, ``late_ms`` per tick,
+    ``realtime``).
 
     Not available: ``engine_state()`` snapshots and ``reset(options={"engine_state": ...})`` (the server's
     state cannot be captured or restored: NotImplementedError), seeded reproducibility of trajectories
@@ -257,11 +270,12 @@ class MinecraftParallelEnv(RealParallelEnv):
 
     @staticmethod
     def _action_record(pose: dict, action: dict) -> dict:
-        """The 24-key Mineflayer record of a step's last tick (what was applied: held keys, camera, hits)."""
+        """The 24-key Mineflayer record of a step's last tick (what was applied: held keys, camera, hits,
+        placements, digging)."""
         dyaw, dpitch = pose["camera"]
         pressed = [k for k in range(1, 10) if action[f"hotbar.{k}"]]
         row = {"t": 0, "yaw": 0.0, "pitch": 0.0, "yaw_next": dyaw, "pitch_next": dpitch,
                "controls": {k: bool(action[k]) for k in CONTROL_KEYS},
-               "events": {"attack": int(pose["hit"]), "place_block": int(bool(pose["placed"])), "mine": bool(pose["mine"]),
-                          "hotbar": pressed[0] if pressed else None}}
+               "events": {"attack": int(pose["hit"]), "place_block": int(bool(pose["placed"])),
+                          "mine": bool(pose["mine"]), "hotbar": pressed[0] if pressed else None}}
         return action_record(row)

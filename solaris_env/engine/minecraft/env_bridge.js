@@ -246,6 +246,8 @@ function use (i) {
   if (!item || !bot.registry.blocksByName[item.name]) return
   const ref = bot.blockAtCursor(BLOCK_REACH)
   if (!ref || ref.type === 0 || !FACE_NORMALS[ref.face]) return
+  const other = bot.entityAtCursor(BLOCK_REACH) // a player in front of the block takes the click
+  if (other && other.type === 'player') return
   const normal = FACE_NORMALS[ref.face]
   const dest = ref.position.plus(normal)
   const there = bot.blockAt(dest)
@@ -305,6 +307,14 @@ function startStep (req) {
   if (!Array.isArray(req.ticks) || req.ticks.length < 1) throw new Error('step needs ticks: a non-empty list')
   for (const t of req.ticks) {
     if (!Array.isArray(t) || t.length !== bots.length) throw new Error(`every tick needs one action per bot (${bots.length})`)
+    for (const act of t) {
+      if (act.hotbar != null && !(Number.isInteger(act.hotbar) && act.hotbar >= 1 && act.hotbar <= 9)) {
+        throw new Error(`action.hotbar must be null or an integer 1..9, got ${JSON.stringify(act.hotbar)}`)
+      }
+      for (const k of ['attack', 'use']) {
+        if (act[k] !== undefined && act[k] !== 0 && act[k] !== 1) throw new Error(`action.${k} must be 0 or 1, got ${JSON.stringify(act[k])}`)
+      }
+    }
   }
   step = {
     ticks: req.ticks, k: req.ticks.length, frames: bots.map(() => []), poses: bots.map(() => []), lateMs: [],
