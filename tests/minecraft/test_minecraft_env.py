@@ -245,5 +245,11 @@ def test_attack_digs_and_use_places_and_reset_restores_the_world():
         env.step({"Alpha": _act(camera=_turn_to(infos["Alpha"], cell + [0.5, 1.0, 0.5]), hotbar_3=1), "Bravo": noop()})
         steps, _, infos = _until(env, _act(attack=1), "mined", 10)
         assert infos["Alpha"]["mined"] == [(*cell.astype(int).tolist(), int(Block.GRASS))] and steps <= 5, steps
+        # bad input names the field, in the env and in the bridge's protocol
+        with pytest.raises(ValueError, match="'use'"):
+            env.step({"Alpha": _act(use=2), "Bravo": noop()})
+        with pytest.raises(RuntimeError, match="action.hotbar"):
+            env.bridge.step([[{"controls": {}, "hotbar": 12}, {"controls": {}}]])
+        _step(env)  # the bridge still steps
     finally:
         env.close()
