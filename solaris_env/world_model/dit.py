@@ -199,6 +199,7 @@ class ContextKV(NamedTuple):
     # arrays (``unstack``): a pass then reads each layer's K/V in place instead of slicing a stacked array
 
     def unstack(self) -> "ContextKV":
+        """The stacked form -> the per-layer form (each layer its own buffers)."""
         return ContextKV(*(tuple(a[i] for i in range(a.shape[0])) for a in self))
 
     @property
@@ -663,7 +664,7 @@ class WorldDiT(nnx.Module):
             if not keep_cache:
                 new_caches = None
             elif not per_layer:
-                new_caches = jax.tree.map(lambda *a: jnp.stack(a), *new_caches)
+                new_caches = kv_cache.stack(tuple(new_caches))
             else:
                 new_caches = tuple(new_caches)
             return self._unpatchify(self.head(tokens, e)), new_caches

@@ -125,3 +125,20 @@ def test_kept_mask_marks_the_slots_valid_after_an_update(length, n_new):
     kept = np.asarray(kv_cache.kept_mask(cache, n_new))
     after = np.asarray(updated.k[0, :, 0, 0])[np.asarray(kv_cache.valid_mask(updated))]
     np.testing.assert_array_equal(np.arange(size)[kept], after[after >= 0])  # old entries still seen
+
+
+def test_unstack_gives_each_layer_its_cache_and_stack_inverts_it():
+    cfg = WorldModelConfig.test()
+    cache = kv_cache.init_cache(cfg, batch=2)
+    cache = cache.replace(self_attn=cache.self_attn.replace(
+        k=jax.random.normal(jax.random.key(0), cache.self_attn.k.shape),
+        length=jnp.arange(cfg.dit.num_layers, dtype=jnp.int32)))
+    layers = kv_cache.unstack(cache)
+    assert len(layers) == cfg.dit.num_layers
+    for i, layer in enumerate(layers):
+        np.testing.assert_array_equal(layer.self_attn.k, cache.self_attn.k[i])
+        assert int(layer.self_attn.length) == i and layer.mouse.layout == "BNSK"
+    back = kv_cache.stack(layers)
+    for a, b in zip(jax.tree.leaves(back), jax.tree.leaves(cache)):
+        np.testing.assert_array_equal(a, b)
+    assert jax.tree.structure(back) == jax.tree.structure(cache)
