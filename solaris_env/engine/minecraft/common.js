@@ -4,11 +4,15 @@
 'use strict'
 global.THREE = require('three')
 global.Worker = require('worker_threads').Worker
+const { performance } = require('perf_hooks')
 const mineflayer = require('mineflayer')
+const { Physics, PlayerState } = require('prismarine-physics')
 const { createCanvas } = require('node-canvas-webgl/lib')
 const { Viewer, WorldView } = require('prismarine-viewer/viewer')
 
 const TICK_S = 0.05
+const TICK_MS = 50
+const MAX_CATCHUP_TICKS = 4 // due ticks run back to back at most (as mineflayer's physics loop)
 const EYE = 1.62
 const SNEAK_EYE = 1.27
 const BURST_DT_MS = 25 // a physics tick less than this after the previous one is a catch-up tick
@@ -84,6 +88,46 @@ function makeView (cfg, bot) {
   }
 }
 
+// Mineflayer's own physics step for one bot (prismarine-physics, the call of mineflayer's physics plugin, whose
+// loop is switched off so that one clock ticks every bot): returns step(), which advances one tick once the bot's
+// chunk is loaded and throws on a non-finite position (flying-squid packets have caused NaN positions).
+function makePhysicsStep (bot, name) {
+  const world = { getBlock: (pos) => bot.blockAt(pos, false) }
+  const engine = Physics(bot.registry, world)
+  return () => {
+    if (bot.entity && bot.blockAt(bot.entity.position) != null) {
+      engine.simulatePlayer(new PlayerState(bot, bot.controlState), world).apply(bot)
+    }
+    const p = bot.entity.position
+    if (!Number.isFinite(p.x + p.y + p.z)) throw new Error(`${name}'s position is not finite: ${p}`)
+  }
+}
+
+// One 20 Hz clock for all bots of a process (the recorder and the env bridge): ``tick(lateMs)`` runs once per
+// due tick, at most ``maxCatchup`` back to back after a late timer (catch-up ticks); further behind, the clock
+// skips ahead and ``onSkip(n)`` gets the number of ticks never played (the game ran slower than real time).
+// The clock stops rescheduling itself once ``running()`` is false. Returns {t0, n}: n = due ticks so far.
+function startLockstepClock ({ tick, onSkip, maxCatchup, running = () => true }) {
+  const clock = { t0: performance.now(), n: 0 }
+  function onClock () {
+    let ran = 0
+    while (performance.now() >= clock.t0 + (clock.n + 1) * TICK_MS) {
+      if (ran === maxCatchup) {
+        const skipped = Math.floor((performance.now() - clock.t0) / TICK_MS) - clock.n
+        clock.n += skipped
+        onSkip(skipped)
+        break
+      }
+      clock.n++
+      ran++
+      tick(performance.now() - (clock.t0 + clock.n * TICK_MS))
+    }
+    if (running()) setTimeout(onClock, Math.max(0, clock.t0 + (clock.n + 1) * TICK_MS - performance.now()))
+  }
+  setTimeout(onClock, TICK_MS)
+  return clock
+}
+
 module.exports = {
-  TICK_S, EYE, SNEAK_EYE, BURST_DT_MS, CONTROL_KEYS, rngFrom, xzDist, uniform, wrapPi, yawPitchTo, makeBot, makeView
+  TICK_S, TICK_MS, MAX_CATCHUP_TICKS, startLockstepClock, makePhysicsStep, EYE, SNEAK_EYE, BURST_DT_MS, CONTROL_KEYS, rngFrom, xzDist, uniform, wrapPi, yawPitchTo, makeBot, makeView
 }

@@ -35,12 +35,10 @@
 // arrives (before the next tick's physics), action j+1 right after frame j is rendered. Between steps the
 // bots keep ticking in real time holding the last step's movement keys (no camera, no once-keys): those
 // are reported as idleTicks. A tick that runs more than BURST_DT_MS after its due time (the event loop was
-// busy) is a catch-up tick (counted in catchup / idleCatchup); after MAX_CATCHUP due ticks in one go the
+// busy) is a catch-up tick (counted in catchup / idleCatchup); after common.MAX_CATCHUP_TICKS due ticks in one go the
 // clock skips ahead and the skipped ticks are reported as dropped (the game ran slower than real time).
 'use strict'
 const net = require('net')
-const { performance } = require('perf_hooks')
-const { Physics, PlayerState } = require('prismarine-physics')
 const common = require('./common')
 const { BURST_DT_MS, CONTROL_KEYS, xzDist } = common
 const { Vec3 } = require('vec3')
@@ -51,8 +49,6 @@ const cfg = Object.assign({
   renderHeight: 64, viewDistance: 4, fovDeg: 70, warmupMs: 3000
 }, JSON.parse(process.argv[2] || '{}'))
 
-const TICK_MS = 50
-const MAX_CATCHUP = 4 // due ticks run back to back at most (as mineflayer's physics loop)
 const REACH = 3.0 // survival attack reach
 const BLOCK_REACH = 4.5 // survival block reach from the eye (the voxel engine's REACH)
 const BREAK_DELAY_TICKS = 5 // vanilla pause between two broken blocks while attack is held (as the voxel engine)
@@ -83,32 +79,17 @@ let client = null
 // ---------------------------------------------------------------------------------------------
 // The game clock
 // ---------------------------------------------------------------------------------------------
-const clock = { t0: 0, n: 0, tick: 0 } // n: due ticks since t0; tick: ticks played since start
+const clock = { tick: 0 } // ticks played since start
 let step = null // the step being played: {ticks, k, frames: [[Buffer]], poses: [[pose]], lateMs, catchup, ...}
 let pendingReset = null // resolve(frames, poses) at the next tick
 const idle = { ticks: 0, catchup: 0, dropped: 0 }
 
 function startClock () {
-  clock.t0 = performance.now()
-  setTimeout(onClock, TICK_MS)
-}
-
-function onClock () {
-  let ran = 0
-  while (performance.now() >= clock.t0 + (clock.n + 1) * TICK_MS) {
-    if (ran === MAX_CATCHUP) { // too far behind: skip ahead (reported), the game slows down
-      const now = performance.now()
-      const skipped = Math.floor((now - clock.t0) / TICK_MS) - clock.n
-      clock.n += skipped
-      if (step) step.dropped += skipped; else idle.dropped += skipped
-      break
-    }
-    clock.n++
-    ran++
-    const lateMs = performance.now() - (clock.t0 + clock.n * TICK_MS)
-    try { gameTick(lateMs) } catch (err) { fail(`tick ${clock.tick}: ${err && err.stack ? err.stack : err}`) }
-  }
-  setTimeout(onClock, Math.max(0, clock.t0 + (clock.n + 1) * TICK_MS - performance.now()))
+  common.startLockstepClock({
+    maxCatchup: common.MAX_CATCHUP_TICKS,
+    tick: (lateMs) => { try { gameTick(lateMs) } catch (err) { fail(`tick ${clock.tick}: ${err && err.stack ? err.stack : err}`) } },
+    onSkip: (n) => { if (step) step.dropped += n; else idle.dropped += n } // the game slows down: reported
+  })
 }
 
 function gameTick (lateMs) {
@@ -117,17 +98,8 @@ function gameTick (lateMs) {
     s.digCooldown = Math.max(0, s.digCooldown - 1)
     s.useCooldown = Math.max(0, s.useCooldown - 1)
   }
-  for (let i = 0; i < bots.length; i++) {
-    const bot = bots[i]
-    if (bot.entity && bot.blockAt(bot.entity.position) != null) { // chunk loaded
-      physics[i].simulatePlayer(new PlayerState(bot, bot.controlState), physics[i].world).apply(bot)
-    }
-  }
-  bots.forEach((b, i) => {
-    const p = b.entity.position
-    if (!Number.isFinite(p.x + p.y + p.z)) throw new Error(`${cfg.names[i]}'s position is not finite: ${p}`)
-    b.emit('physicsTick')
-  })
+  physics.forEach(stepPhysics => stepPhysics())
+  bots.forEach(b => b.emit('physicsTick'))
   const catchup = lateMs > BURST_DT_MS
   if (pendingReset) {
     const done = pendingReset
@@ -450,11 +422,8 @@ async function main () {
   for (const name of cfg.names) {
     const bot = common.makeBot(cfg, name, fail, { physicsEnabled: false }) // our clock runs the physics
     await new Promise((resolve) => bot.once('spawn', resolve))
-    const world = { getBlock: (pos) => bot.blockAt(pos, false) }
-    const engine = Physics(bot.registry, world)
-    engine.world = world
     bots.push(bot)
-    physics.push(engine)
+    physics.push(common.makePhysicsStep(bot, name))
     acts.push({ dig: null, digCooldown: 0, useCooldown: 0, placed: [], mined: [], watchers: new Map() })
   }
   await giveKits() // on the empty inventory the kit fills hotbar slots 1-4 in order

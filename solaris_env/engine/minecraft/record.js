@@ -18,7 +18,6 @@
 const fs = require('fs')
 const path = require('path')
 const { performance } = require('perf_hooks')
-const { Physics, PlayerState } = require('prismarine-physics')
 const common = require('./common') // bots, views, RNG and angle helpers shared with env_bridge.js
 const { EYE, BURST_DT_MS, CONTROL_KEYS, rngFrom, xzDist } = common
 
@@ -28,8 +27,6 @@ const cfg = Object.assign({
   maxTicks: 3600, warmupMs: 3000, fovDeg: 70, outDir: '.'
 }, JSON.parse(process.argv[2] || '{}'))
 
-const TICK_MS = 50
-const MAX_CATCHUP_TICKS = 4 // as mineflayer's physics loop
 const PRE_ROLL_TICKS = 20 // the reference sleeps 1 s after recording starts
 const SURFACE_Y = 5 // feet height on server.js's superflat world
 
@@ -247,39 +244,25 @@ async function main () {
   // One 20 Hz clock drives both bots in lockstep (mineflayer's per-bot physics timers drift apart under
   // load): each tick steps Mineflayer's physics for every bot, then renders and acts for every bot, so
   // tick t of Alpha and tick t of Bravo are the same game moment. A late timer runs up to
-  // MAX_CATCHUP_TICKS ticks back to back (catch-up ticks, counted from dtMs); beyond that the clock
+  // common.MAX_CATCHUP_TICKS ticks back to back (catch-up ticks, counted from dtMs); beyond that the clock
   // skips ahead (the game ran slower than real time for a moment).
-  const worlds = bots.map(b => ({ getBlock: (pos) => b.blockAt(pos, false) }))
-  const physics = bots.map((b, i) => Physics(b.registry, worlds[i]))
+  const physics = bots.map((b, i) => common.makePhysicsStep(b, names[i]))
   bots.forEach(b => { b.physicsEnabled = false }) // mineflayer keeps sending positions; we simulate
-  const clock = { t0: performance.now(), n: 0, skipped: 0 } // skipped: ticks of wall time never played
   function gameTick () {
-    bots.forEach((b, i) => {
-      if (b.blockAt(b.entity.position) != null) physics[i].simulatePlayer(new PlayerState(b, b.controlState), worlds[i]).apply(b)
-      const p = b.entity.position
-      if (!Number.isFinite(p.x + p.y + p.z)) throw new Error(`${names[i]}'s position is not finite: ${p}`)
-    })
+    physics.forEach(stepPhysics => stepPhysics())
     onTick()
   }
-  function onClock () {
-    let ran = 0
-    while (performance.now() >= clock.t0 + (clock.n + 1) * TICK_MS) {
-      if (ran === MAX_CATCHUP_TICKS) {
-        const due = Math.floor((performance.now() - clock.t0) / TICK_MS)
-        if (!states[0].stopped) clock.skipped += due - clock.n
-        clock.n = due
-        break
-      }
-      clock.n++; ran++
-      try { gameTick() } catch (err) { fail(`tick ${clock.n}: ${err && err.stack ? err.stack : err}`) }
-    }
-    if (!states.every(x => x.stopped)) setTimeout(onClock, Math.max(0, clock.t0 + (clock.n + 1) * TICK_MS - performance.now()))
-  }
-  setTimeout(onClock, TICK_MS)
+  let skippedTicks = 0 // ticks of wall time never played
+  const clock = common.startLockstepClock({
+    maxCatchup: common.MAX_CATCHUP_TICKS,
+    tick: () => { try { gameTick() } catch (err) { fail(`tick ${clock.n}: ${err && err.stack ? err.stack : err}`) } },
+    onSkip: (n) => { if (!states[0].stopped) skippedTicks += n },
+    running: () => !states.every(x => x.stopped)
+  })
   await done
   const info = {
     episodeType, episode: cfg.episode, seed: cfg.seed, names, isEval: EVAL_TYPES.has(episodeType), summary: Object.fromEntries(states.map(s => [s.name, { ...s.ctx.summary, placeClicks: s.pending.clicks }])),
-    renderWidth: cfg.renderWidth, renderHeight: cfg.renderHeight, fovDeg: cfg.fovDeg, eyeHeight: EYE, skippedTicks: clock.skipped,
+    renderWidth: cfg.renderWidth, renderHeight: cfg.renderHeight, fovDeg: cfg.fovDeg, eyeHeight: EYE, skippedTicks,
     aborted: !!abortReason || states.some(s => !s.finished), abortReason: abortReason || (states.some(s => !s.finished) ? `episode exceeded maxTicks=${cfg.maxTicks}` : ''),
     bots: Object.fromEntries(states.map(s => [s.name, { frames: s.t, bursts: s.bursts, lookResets: s.lookResets, startTick: s.ctx.startTick, evalMetadata: s.ctx.evalMetadata }]))
   }
