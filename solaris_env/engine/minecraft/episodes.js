@@ -532,7 +532,10 @@ function * buildTower (ctx) {
   yield * eyeContact(ctx)
   let built = 0
   for (let k = 0; k < height; k++) {
-    if (!(yield * placeBelow(ctx, 'oak_planks', -1.45))) break
+    // a jump-place click the server rejects (it judged the feet against a stale position) is retried
+    let placed = false
+    for (let attempt = 0; attempt < 3 && !placed; attempt++) placed = yield * placeBelow(ctx, 'oak_planks', -1.45)
+    if (!placed) break
     built++
     yield * sleep(ctx, 0.2)
   }
