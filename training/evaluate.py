@@ -10,7 +10,8 @@ On held-out Duet episodes (``DATA/duet/test``), from each segment's first frame 
     closer to the ground truth than zeroed ones);
 (c) collapse: a ``long_steps`` rollout (default 200) with PSNR and mean/std of the pixels over time
     (a collapsing model drifts to a flat or saturated image);
-plus a contact sheet (generated over ground truth, both players, 64 steps) and ``eval.json``.
+next to both, the ceiling: the VAE's reconstruction of the ground truth (its encode then decode, i.e. a DiT
+that predicted every latent exactly); plus a contact sheet (generated over ground truth, both players, 64 steps) and ``eval.json``.
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ from training.samples import (
     psnr_per_frame,
     rollout,
     side_by_side,
+    vae_reconstruction,
     write_json,
     write_mp4,
     write_png,
@@ -62,15 +64,20 @@ def evaluate(model_dir: str | Path, data_dir: str | Path, out_dir: str | Path, n
     gen = rollout(model, obs, act, seed)
     gen_zero = rollout(model, obs, np.zeros_like(act), seed)
     copy = np.repeat(obs[:, :1], obs.shape[1], axis=1)
+    ceiling = vae_reconstruction(model, obs)
     score = lambda x: psnr_per_frame(x, obs)[:, 1:]  # (B, T-1, P): frames after the given one
     per_player = lambda x: [float(v) for v in score(x).mean(axis=(0, 1))]
+    by_step = lambda x: [float(v) for v in score(x).mean(axis=(0, 2)).reshape(steps, k).mean(axis=1)]  # env step
     result["rollout"] = {
         "segments": len(obs), "steps": steps, "frames": int(obs.shape[1]),
         "psnr_model_db": float(score(gen).mean()), "psnr_copy_last_frame_db": float(score(copy).mean()),
         "psnr_zero_actions_db": float(score(gen_zero).mean()),
         "psnr_model_per_player_db": per_player(gen), "psnr_zero_actions_per_player_db": per_player(gen_zero),
         "psnr_copy_per_player_db": per_player(copy),
-        "psnr_model_by_step_db": [float(v) for v in score(gen).mean(axis=(0, 2))[k - 1::k]],
+        "psnr_model_by_step_db": by_step(gen),
+        "psnr_copy_last_frame_by_step_db": by_step(copy),
+        "psnr_vae_reconstruction_db": float(score(ceiling).mean()),
+        "psnr_vae_reconstruction_by_step_db": by_step(ceiling),
     }
     r = result["rollout"]
     r["beats_copy_last_frame"] = r["psnr_model_db"] > r["psnr_copy_last_frame_db"]

@@ -41,6 +41,19 @@ def rollout(model: WorldModel, obs_BTPHW3: np.ndarray, act_BTP25: np.ndarray, se
     return np.concatenate(out, axis=1)
 
 
+def vae_reconstruction(model: WorldModel, obs_BTPHW3: np.ndarray, batch: int = 8) -> np.ndarray:
+    """Decode of the encoded ground truth, uint8 (B, T, P, H, W, 3): what a DiT that predicted every latent
+    exactly would show, so the PSNR of this is the ceiling of any rollout of the model."""
+    from solaris_env.world_model.world_model import frames_to_model, frames_to_uint8
+
+    _, vae, _ = model.modules()
+    b, t, p = obs_BTPHW3.shape[:3]
+    videos = np.swapaxes(obs_BTPHW3, 1, 2).reshape((b * p, t) + obs_BTPHW3.shape[3:])  # (B*P, T, H, W, 3)
+    codec = jax.jit(lambda v: frames_to_uint8(vae.decode(vae.encode(frames_to_model(v)))))
+    rec = np.concatenate([np.asarray(codec(jnp.asarray(videos[i:i + batch]))) for i in range(0, len(videos), batch)])
+    return np.swapaxes(rec.reshape((b, p) + rec.shape[1:]), 1, 2)
+
+
 def psnr_per_frame(a_BTPHW3: np.ndarray, b_BTPHW3: np.ndarray) -> np.ndarray:
     """PSNR (dB, peak 255) per (B, T, P) frame."""
     mse = np.mean((a_BTPHW3.astype(np.float64) - b_BTPHW3.astype(np.float64)) ** 2, axis=(-3, -2, -1))

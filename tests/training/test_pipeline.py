@@ -114,3 +114,22 @@ def test_self_forcing_stage_runs_from_stages_2_and_3(run, data):
     assert "generator/loss" in metrics[0] and "critic/loss" in metrics[0]  # iteration 0 updates both
     assert "generator/loss" not in metrics[1] and "critic/loss" in metrics[1]
     assert list((run / "self-forcing" / "samples").glob("*.mp4"))
+
+
+def test_evaluate_scores_rollouts_against_copy_last_and_the_vae_ceiling(run, data, tmp_path):
+    from training.evaluate import evaluate
+
+    result = evaluate(model_dir(run, "mp-causal"), data, tmp_path, num_segments=2, steps=2, long_steps=3,
+                      sheet_steps=2)
+    r = result["rollout"]
+    assert r["segments"] == 2 and r["frames"] == 1 + 4 * 2
+    for key in ("psnr_model_by_step_db", "psnr_copy_last_frame_by_step_db", "psnr_vae_reconstruction_by_step_db"):
+        assert len(r[key]) == 2, key
+    # the by-step means average to the overall means (every step has the same number of frames)
+    assert sum(r["psnr_copy_last_frame_by_step_db"]) / 2 == pytest.approx(r["psnr_copy_last_frame_db"])
+    # the VAE's reconstruction is a real decode of the clip: a finite PSNR in the range of a trained codec
+    assert 10.0 < r["psnr_vae_reconstruction_db"] < 60.0
+    assert r["beats_copy_last_frame"] == (r["psnr_model_db"] > r["psnr_copy_last_frame_db"])
+    assert len(result["long_rollout"]["psnr_db"]) == 1
+    assert json.loads((tmp_path / "eval.json").read_text())["rollout"] == r
+    assert (tmp_path / "contact_sheet.png").is_file() and (tmp_path / "rollout_0.mp4").is_file()
