@@ -13,7 +13,8 @@ made the shipped model; its numbers are as noisy as the machine was then).
 Per stage: the median of the logged ``steps_per_s`` / ``tokens_per_s`` intervals, leaving out the first
 interval (it holds the compilation). Tokens are what the stage's model sees per update: pixels of the
 clips for the VAE, latent tokens (batch x players x latent frames x tokens per frame) for the DiT stages.
-Writes ``benchmarks/results/training_speed.json``.
+The measured mode also projects the wall-clock of the whole ``solaris-train all`` with the configured
+budgets (``project_all``). Writes ``benchmarks/results/training_speed.json``.
 """
 
 from __future__ import annotations
@@ -60,11 +61,15 @@ def summarise_run(run: Path, stage_cfg: dict | None) -> dict:
 
 
 def measure(preset: str, steps: int, episodes: int, workdir: Path) -> tuple[dict, dict]:
-    """Collect ``episodes`` with the engine and run every stage for ``steps`` updates in ``workdir``."""
+    """Collect ``episodes`` with the engine and run every stage for ``steps`` updates in ``workdir``; each
+    stage's wall time is kept (its updates plus its fixed costs: compilation, latent cache, evaluations)."""
+    import argparse as _argparse
+
     from training import cli
     from training.train import load_stage_config
 
     cfg = load_stage_config(preset)
+    shipped = json.loads(json.dumps(cfg))  # the budgets the projection is for
     cfg["collect"].update(episodes=episodes, test_fraction=0.25, seed=7)
     for stage in STAGES:
         n = max(steps // 3, 3) if stage == "self-forcing" else steps
@@ -72,14 +77,37 @@ def measure(preset: str, steps: int, episodes: int, workdir: Path) -> tuple[dict
         cfg[stage].update(steps=n, log_every=log_every, ckpt_every=n, sample_every=n)
         if stage == "vae":
             cfg[stage].update(eval_clips=4, stats_clips=8)
-    config_path = workdir / "speed_config.json"
-    config_path.write_text(json.dumps(cfg, indent=1))
+    data, out = workdir / "data", workdir / "run"
     t0 = time.perf_counter()
-    rc = cli.main(["all", "--config", str(config_path), "--data", str(workdir / "data"),
-                   "--out", str(workdir / "run")])
-    if rc:
-        raise SystemExit(f"solaris-train all failed with exit code {rc}")
-    return summarise_run(workdir / "run", cfg), {"total_wall_s": time.perf_counter() - t0, "config": cfg}
+    cli.collect_if_missing(data, preset, cfg["collect"])
+    walls = {"collect": time.perf_counter() - t0}
+    args = _argparse.Namespace(preset=preset, config=None, data=str(data), out=str(out), seed=None, no_resume=False,
+                               fsdp=False, steps=None)
+    for stage in STAGES:
+        t = time.perf_counter()
+        cli.run_stage(stage, args, cfg)
+        walls[stage] = time.perf_counter() - t
+    stages = summarise_run(out, cfg)
+    for stage, s in stages.items():
+        s["stage_wall_s"] = walls[stage]
+    return stages, {"total_wall_s": time.perf_counter() - t0, "walls": walls, "config": cfg, "shipped": shipped}
+
+
+def project_all(stages: dict, walls: dict, episodes: int, shipped: dict) -> dict:
+    """Wall-clock of ``solaris-train all`` with the shipped budgets, from a short measured run: collection
+    scaled by episodes; each stage's configured updates at its measured rate, plus its measured fixed cost
+    (stage wall minus its updates), the first DiT stage's (it builds the latent cache of every video)
+    scaled by episodes. A projection, not a run: compilation and evaluation costs are taken as measured."""
+    scale = shipped["collect"]["episodes"] / episodes
+    parts = {"collect_s": walls["collect"] * scale}
+    for stage, s in stages.items():
+        configured = shipped[stage]["steps"]
+        fixed = max(s["stage_wall_s"] - s["steps"] / s["steps_per_s"], 0.0)
+        if stage == "sp":
+            fixed *= scale
+        parts[f"{stage}_s"] = configured / s["steps_per_s"] + fixed
+    return {"episodes": shipped["collect"]["episodes"], "parts_s": parts, "total_min": sum(parts.values()) / 60,
+            "budget_min": 150}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -102,8 +130,9 @@ def main(argv: list[str] | None = None) -> int:
     else:
         with tempfile.TemporaryDirectory(dir=args.workdir) as tmp:
             stages, extra = measure(args.preset, args.steps, args.episodes, Path(tmp))
+        projection = project_all(stages, extra["walls"], args.episodes, extra["shipped"])
         extra = {"mode": "measured", "steps_per_stage": args.steps, "episodes": args.episodes,
-                 "total_wall_s": extra["total_wall_s"]}
+                 "total_wall_s": extra["total_wall_s"], "projected_all": projection}
     if not stages:
         raise SystemExit("no stage metrics found")
 
@@ -116,6 +145,10 @@ def main(argv: list[str] | None = None) -> int:
     for stage, s in stages.items():
         print(f"{stage:<18}{s['steps_per_s']:>10.3f}{s['tokens_per_s']:>12.0f}{s.get('batch_size', '-'):>7}"
               f"{s.get('num_frames', '-'):>8}")
+    if "projected_all" in extra:
+        proj = extra["projected_all"]
+        print(f"projected `solaris-train all --preset {args.preset}` ({proj['episodes']} episodes, the configured "
+              f"steps): {proj['total_min']:.0f} min (budget {proj['budget_min']} min)")
     write_json(Path(args.out), result)
     print(f"wrote {args.out}")
     return 0
