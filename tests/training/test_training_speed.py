@@ -31,10 +31,14 @@ def test_run_summary_lists_only_stages_with_metrics(tmp_path):
 def test_project_all_scales_collection_and_the_latent_cache_by_episodes():
     from benchmarks.training_speed import project_all
 
-    # measured: 4 episodes; sp ran 10 updates at 2/s in 25 s -> 20 s fixed (latent cache of 4 episodes)
+    # measured on 4 episodes: sp ran 10 updates at 2/s in 25 s -> 20 s fixed, of which mp-bidirectional's 5 s
+    # (compile, samples) recur and 15 s are the latent cache of 4 episodes
     stages = {"vae": {"steps": 10, "steps_per_s": 1.0, "stage_wall_s": 15.0},
-              "sp": {"steps": 10, "steps_per_s": 2.0, "stage_wall_s": 25.0}}
-    shipped = {"collect": {"episodes": 40}, "vae": {"steps": 100}, "sp": {"steps": 200}}
+              "sp": {"steps": 10, "steps_per_s": 2.0, "stage_wall_s": 25.0},
+              "mp-bidirectional": {"steps": 10, "steps_per_s": 1.0, "stage_wall_s": 15.0}}
+    shipped = {"collect": {"episodes": 40}, "vae": {"steps": 100}, "sp": {"steps": 200},
+               "mp-bidirectional": {"steps": 50}}
     proj = project_all(stages, {"collect": 6.0}, episodes=4, shipped=shipped)
-    assert proj["parts_s"] == {"collect_s": 60.0, "vae_s": 100.0 + 5.0, "sp_s": 100.0 + 200.0}
-    assert proj["total_min"] == (60.0 + 105.0 + 300.0) / 60
+    assert proj["parts_s"] == {"collect_s": 60.0, "vae_s": 100.0 + 5.0, "latent_cache_s": 150.0,
+                               "sp_s": 100.0 + 5.0 + 150.0, "mp-bidirectional_s": 50.0 + 5.0}
+    assert proj["total_min"] == (60.0 + 105.0 + 255.0 + 55.0) / 60
