@@ -63,8 +63,6 @@ def summarise_run(run: Path, stage_cfg: dict | None) -> dict:
 def measure(preset: str, steps: int, episodes: int, workdir: Path) -> tuple[dict, dict]:
     """Collect ``episodes`` with the engine and run every stage for ``steps`` updates in ``workdir``; each
     stage's wall time is kept (its updates plus its fixed costs: compilation, latent cache, evaluations)."""
-    import argparse as _argparse
-
     from training import cli
     from training.train import load_stage_config
 
@@ -81,7 +79,7 @@ def measure(preset: str, steps: int, episodes: int, workdir: Path) -> tuple[dict
     t0 = time.perf_counter()
     cli.collect_if_missing(data, preset, cfg["collect"])
     walls = {"collect": time.perf_counter() - t0}
-    args = _argparse.Namespace(preset=preset, config=None, data=str(data), out=str(out), seed=None, no_resume=False,
+    args = argparse.Namespace(preset=preset, config=None, data=str(data), out=str(out), seed=None, no_resume=False,
                                fsdp=False, steps=None)
     for stage in STAGES:
         t = time.perf_counter()

@@ -44,13 +44,16 @@ def rollout(model: WorldModel, obs_BTPHW3: np.ndarray, act_BTP25: np.ndarray, se
 def vae_reconstruction(model: WorldModel, obs_BTPHW3: np.ndarray, batch: int = 8) -> np.ndarray:
     """Decode of the encoded ground truth, uint8 (B, T, P, H, W, 3): what a DiT that predicted every latent
     exactly would show, so the PSNR of this is the ceiling of any rollout of the model."""
-    from solaris_env.world_model.world_model import frames_to_model, frames_to_uint8
+    from flax import nnx
 
-    _, vae, _ = model.modules()
+    from training.vae import make_reconstruct
+
+    graphdef, params, rest = nnx.split(model.modules()[1], nnx.Param, ...)
+    reconstruct = make_reconstruct(graphdef)
     b, t, p = obs_BTPHW3.shape[:3]
     videos = np.swapaxes(obs_BTPHW3, 1, 2).reshape((b * p, t) + obs_BTPHW3.shape[3:])  # (B*P, T, H, W, 3)
-    codec = jax.jit(lambda v: frames_to_uint8(vae.decode(vae.encode(frames_to_model(v)))))
-    rec = np.concatenate([np.asarray(codec(jnp.asarray(videos[i:i + batch]))) for i in range(0, len(videos), batch)])
+    rec = np.concatenate([np.asarray(reconstruct(params, rest, jnp.asarray(videos[i:i + batch])))
+                          for i in range(0, len(videos), batch)])
     return np.swapaxes(rec.reshape((b, p) + rec.shape[1:]), 1, 2)
 
 

@@ -304,7 +304,13 @@ function * placeAt (ctx, cell, item, { attempts = 3, approach = true, sneak = fa
   return blockName(ctx, x, y, z) === item
 }
 /** Pillar up one block: look down, jump, and place `item` in the cell the feet just left. */
-function * placeBelow (ctx, item, pitch = -PITCH_LIMIT, timeoutS = 2) {
+/** Jump and place `item` under the feet; a click the server rejects (it judged the feet against a stale
+ * position) is retried, up to `attempts` jumps. */
+function * placeBelow (ctx, item, pitch = -PITCH_LIMIT, timeoutS = 2, attempts = 3) {
+  for (let a = 0; a < attempts; a++) if (yield * jumpPlaceOnce(ctx, item, pitch, timeoutS)) return true
+  return false
+}
+function * jumpPlaceOnce (ctx, item, pitch, timeoutS) {
   const [x, y, z] = feetCell(ctx)
   if (!isSolid(ctx, x, y - 1, z) || isSolid(ctx, x, y + 2, z) || isSolid(ctx, x, y, z)) return false
   yield * select(ctx, item)
@@ -532,10 +538,7 @@ function * buildTower (ctx) {
   yield * eyeContact(ctx)
   let built = 0
   for (let k = 0; k < height; k++) {
-    // a jump-place click the server rejects (it judged the feet against a stale position) is retried
-    let placed = false
-    for (let attempt = 0; attempt < 3 && !placed; attempt++) placed = yield * placeBelow(ctx, 'oak_planks', -1.45)
-    if (!placed) break
+    if (!(yield * placeBelow(ctx, 'oak_planks', -1.45))) break
     built++
     yield * sleep(ctx, 0.2)
   }
