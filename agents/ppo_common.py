@@ -34,6 +34,8 @@ class PPOArgs:
     start_states: int = arg(256, "training start states (reset seeds TRAIN_START_SEED + i)")
     world: str = arg("flat", "engine world of the start states: flat | normal | mixed")
     partner: str = arg("noop", "what drives the partner (Bravo): noop | random")
+    keys: str = arg("task", "binary keys the policy may press: 'task' (TASK_KEYS[task]), 'all' (all 23), "
+                            "'none' (camera only) or a comma list, e.g. forward,jump")
     camera_bins: int = arg(11, "camera bins per axis of the flat action (odd)")
     camera_max_deg: float = arg(10.0, "largest camera turn per step, degrees")
     n_steps: int = arg(128, "PPO rollout length per env before each update")
@@ -56,10 +58,45 @@ class PPOArgs:
             raise ValueError(f"partner must be 'noop' or 'random' (both run in the dream), got {self.partner!r}")
         if self.world not in ("flat", "normal", "mixed"):
             raise ValueError(f"world must be 'flat', 'normal' or 'mixed', got {self.world!r}")
+        self.policy_keys()  # fails early on an unknown key
         for name in ("total_timesteps", "checkpoint_every", "max_steps", "start_states", "n_steps", "batch_size",
                      "n_epochs", "torch_threads"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+
+
+    def policy_keys(self) -> tuple[str, ...] | None:
+        """The binary keys of the flat action (None: all of them)."""
+        from solaris_env.spaces import BINARY_KEYS
+
+        if self.keys == "task":
+            return TASK_KEYS[self.task]
+        if self.keys == "all":
+            return None
+        if self.keys == "none":
+            return ()
+        keys = tuple(k.strip() for k in self.keys.split(",") if k.strip())
+        unknown = [k for k in keys if k not in BINARY_KEYS]
+        if unknown or len(set(keys)) != len(keys):
+            raise ValueError(f"keys must be 'task', 'all', 'none' or a comma list of distinct keys from "
+                             f"{list(BINARY_KEYS)}, got {self.keys!r}")
+        return keys
+
+    def codec(self):
+        """The flat MultiDiscrete action encoding the policy acts in."""
+        from solaris_env.spaces import FlatActionCodec
+
+        return FlatActionCodec(camera_bins=self.camera_bins, camera_max_deg=self.camera_max_deg,
+                               kind="multidiscrete", keys=self.policy_keys())
+
+
+# The keys each task's policy may press besides the camera (action shaping, as MineRL agents do): a policy
+# exploring with all 23 keys spends its steps walking off, dropping items and opening the inventory.
+TASK_KEYS: dict[str, tuple[str, ...]] = {
+    "face_partner": (),  # turn to the partner: the camera alone
+    "approach_partner": ("forward", "jump", "sprint"),
+    "build_structure": ("forward", "jump", "sneak", "use"),
+}
 
 
 def ppo_kwargs(args: PPOArgs) -> dict:
@@ -83,7 +120,7 @@ def checkpoint_meta(args: PPOArgs, env_kind: str, obs_shape: tuple[int, ...], fr
     ticks per env step the policy was trained with (the dream's k; the real env's ticks_per_step)."""
     return {"algo": "ppo", "env": env_kind, "task": args.task, "seed": args.seed, "obs_shape": list(obs_shape),
             "frames_per_step": int(frames_per_step),
-            "codec": {"kind": "multidiscrete", "camera_bins": args.camera_bins, "camera_max_deg": args.camera_max_deg},
+            "codec": args.codec().config(),
             "args": dataclasses.asdict(args)}
 
 

@@ -55,7 +55,6 @@ def make_env(args: Args, model, start_states: list):
     """The dream worlds of ``model`` as one SB3 VecEnv of the learner's views (flat MultiDiscrete actions)."""
     from stable_baselines3.common.vec_env import VecMonitor
 
-    from solaris_env.spaces import FlatActionCodec
     from solaris_env.tasks import JUDGED_TASKS
     from solaris_env.vector_env import DreamVectorEnv
     from solaris_env.wrappers.sb3 import SB3VecEnv
@@ -64,8 +63,7 @@ def make_env(args: Args, model, start_states: list):
         args.num_worlds, model=model, num_players=2,
         max_steps=args.max_steps, task=JUDGED_TASKS[args.task](source="judge"), start_states=start_states,
     )
-    codec = FlatActionCodec(camera_bins=args.camera_bins, camera_max_deg=args.camera_max_deg, kind="multidiscrete")
-    envs = SB3VecEnv(worlds, learners=[LEARNER], codec=codec, opponent=args.partner)
+    envs = SB3VecEnv(worlds, learners=[LEARNER], codec=args.codec(), opponent=args.partner)
     if args.obs_size is not None and args.obs_size != worlds.height:
         envs = VecResize(envs, args.obs_size)
     envs = VecMonitor(envs)  # episode returns for rollout/ep_rew_mean

@@ -391,30 +391,29 @@ def vpt_jsonl_to_vectors(lines_or_objs: Iterable[str | Mapping[str, Any]]) -> np
 # ---------------------------------------------------------------------------------------------
 
 
-def _flat_entry_name(i: int) -> str:
-    """Name of flat entry i: a binary key, or camera[0] (dpitch) / camera[1] (dyaw)."""
-    n_binary = len(BINARY_KEYS)
-    return BINARY_KEYS[i] if i < n_binary else f"{CAMERA_KEY}[{i - n_binary}]"
-
-
 class FlatActionCodec:
     """Flat, SB3-friendly encoding of the env action, and back.
 
-    Layout (25 entries): the 23 ``BINARY_KEYS`` in order, then camera [dpitch, dyaw] (MineRL).
+    Layout (``len(keys) + 2`` entries): the exposed binary ``keys`` (default: all 23 ``BINARY_KEYS``, in
+    that order), then camera [dpitch, dyaw] (MineRL). Keys left out are never pressed: a policy that only
+    needs to look around (``keys=()``) does not explore by dropping items or opening the inventory.
 
-    * ``kind="multidiscrete"``: ``MultiDiscrete([2]*23 + [camera_bins]*2)``. Camera bin i is
+    * ``kind="multidiscrete"``: ``MultiDiscrete([2]*len(keys) + [camera_bins]*2)``. Camera bin i is
       ``camera_max_deg * (i - c) / c`` degrees with c = camera_bins // 2: linear, symmetric,
       exact 0 at the centre bin, ends at ±camera_max_deg.
-    * ``kind="box"``: ``Box(-1, 1, (25,), float32)``. A binary key is 1 iff its value > 0 (encode
+    * ``kind="box"``: ``Box(-1, 1, (len(keys) + 2,), float32)``. A binary key is 1 iff its value > 0 (encode
       writes +1/-1); camera degrees = value * camera_max_deg.
 
     ``encode`` is lossy for the camera (snapped to the nearest bin, or clipped to
-    ±camera_max_deg for "box"); ``decode(encode(decode(x))) == decode(x)`` holds exactly.
+    ±camera_max_deg for "box") and raises on a pressed key that is not exposed;
+    ``decode(encode(decode(x))) == decode(x)`` holds exactly.
 
     Args:
         camera_bins: odd number >= 3 of camera bins per axis ("multidiscrete" only).
         camera_max_deg: largest camera step in degrees, in (0, 180].
         kind: "multidiscrete" or "box".
+        keys: the binary keys the flat action exposes (a subset of ``BINARY_KEYS``, no repeats; any order,
+            kept); None = all of them.
     """
 
     def __init__(
@@ -422,6 +421,7 @@ class FlatActionCodec:
         camera_bins: int = 11,
         camera_max_deg: float = 10.0,
         kind: Literal["multidiscrete", "box"] = "multidiscrete",
+        keys: Sequence[str] | None = None,
     ) -> None:
         if kind not in ("multidiscrete", "box"):
             raise ValueError(f"kind: expected 'multidiscrete' or 'box', got {kind!r}")
@@ -429,6 +429,7 @@ class FlatActionCodec:
             raise ValueError(f"camera_bins: expected an odd int >= 3 (so 0 deg is a bin), got {camera_bins!r}")
         if not (0.0 < camera_max_deg <= CAMERA_LIMIT_DEG):
             raise ValueError(f"camera_max_deg: expected a value in (0, {CAMERA_LIMIT_DEG}], got {camera_max_deg!r}")
+        self.keys = BINARY_KEYS if keys is None else self._check_keys(keys)
         self.kind = kind
         self.camera_bins = int(camera_bins)
         self.camera_max_deg = float(camera_max_deg)
@@ -436,8 +437,30 @@ class FlatActionCodec:
         self.bin_centers_deg = (self.camera_max_deg * (np.arange(self.camera_bins) - half) / half).astype(np.float32)
         self.space = self._make_space()
 
+    @staticmethod
+    def _check_keys(keys: Sequence[str]) -> tuple[str, ...]:
+        if isinstance(keys, str):
+            raise ValueError(f"keys: expected a sequence of key names, got the string {keys!r}")
+        keys = tuple(keys)
+        unknown = [k for k in keys if k not in BINARY_KEYS]
+        if unknown:
+            raise ValueError(f"keys: {unknown[0]!r} is not a binary key; expected names from {list(BINARY_KEYS)}")
+        if len(set(keys)) != len(keys):
+            raise ValueError(f"keys: expected no repeats, got {list(keys)}")
+        return keys
+
+    def config(self) -> dict[str, Any]:
+        """The constructor arguments (JSON-able): ``FlatActionCodec(**codec.config())`` rebuilds it."""
+        return {"kind": self.kind, "camera_bins": self.camera_bins, "camera_max_deg": self.camera_max_deg,
+                "keys": list(self.keys)}
+
+    def _entry_name(self, i: int) -> str:
+        """Name of flat entry i: an exposed key, or camera[0] (dpitch) / camera[1] (dyaw)."""
+        n_binary = len(self.keys)
+        return self.keys[i] if i < n_binary else f"{CAMERA_KEY}[{i - n_binary}]"
+
     def _make_space(self) -> spaces.Space:
-        n_binary = len(BINARY_KEYS)
+        n_binary = len(self.keys)
         if self.kind == "multidiscrete":
             return spaces.MultiDiscrete([2] * n_binary + [self.camera_bins] * 2)
         return spaces.Box(-1.0, 1.0, shape=(n_binary + 2,), dtype=np.float32)
@@ -445,9 +468,13 @@ class FlatActionCodec:
     # -- encode -----------------------------------------------------------------------------
 
     def encode(self, env_action: Mapping[str, Any]) -> np.ndarray:
-        """Env action -> flat (25,) (int64 for "multidiscrete", float32 for "box"); camera is lossy."""
+        """Env action -> flat (len(keys) + 2,) (int64 for "multidiscrete", float32 for "box"); camera is lossy.
+        ValueError if the action presses a key this codec does not expose."""
         action = validate_action(env_action)
-        bits = np.array([action[key] for key in BINARY_KEYS])
+        hidden = [key for key in BINARY_KEYS if action[key] and key not in self.keys]
+        if hidden:
+            raise ValueError(f"action presses {hidden[0]!r}, which this codec does not expose (keys={list(self.keys)})")
+        bits = np.array([action[key] for key in self.keys], dtype=np.int64)
         camera = action[CAMERA_KEY].astype(np.float64)
         if self.kind == "multidiscrete":
             return np.concatenate([bits, self._camera_to_bins(camera)]).astype(np.int64)
@@ -471,40 +498,42 @@ class FlatActionCodec:
     # -- decode -----------------------------------------------------------------------------
 
     def decode(self, flat: Any) -> dict[str, Any]:
-        """Flat (25,) -> validated env action dict; ValueError on wrong shape, dtype or range."""
+        """Flat (len(keys) + 2,) -> validated env action dict (keys not exposed: 0); ValueError on wrong shape,
+        dtype or range."""
         arr = np.asarray(flat)
-        n_flat = len(BINARY_KEYS) + 2
+        n_flat = len(self.keys) + 2
         if arr.shape != (n_flat,):
             raise ValueError(f"flat action: expected shape ({n_flat},), got {arr.shape}")
         if self.kind == "multidiscrete":
             bits, camera = self._decode_multidiscrete(arr)
         else:
             bits, camera = self._decode_box(arr)
-        action: dict[str, Any] = {key: int(b) for key, b in zip(BINARY_KEYS, bits)}
+        action: dict[str, Any] = dict.fromkeys(BINARY_KEYS, 0)
+        action.update({key: int(b) for key, b in zip(self.keys, bits)})
         action[CAMERA_KEY] = camera
         return validate_action(action)
 
     def _decode_multidiscrete(self, arr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Integer (25,) -> (bits (23,), camera float32 (2,) degrees)."""
+        """Integer (len(keys) + 2,) -> (bits (len(keys),), camera float32 (2,) degrees)."""
         if arr.dtype.kind not in "iu":
             raise ValueError(f"flat action: expected an integer array for MultiDiscrete, got dtype {arr.dtype}")
         bad = np.flatnonzero((arr < 0) | (arr >= self.space.nvec))
         if bad.size:
             i = int(bad[0])
             high = self.space.nvec[i] - 1
-            raise ValueError(f"flat action: entry {i} ({_flat_entry_name(i)!r}) = {arr[i]} outside [0, {high}]")
-        n_binary = len(BINARY_KEYS)
+            raise ValueError(f"flat action: entry {i} ({self._entry_name(i)!r}) = {arr[i]} outside [0, {high}]")
+        n_binary = len(self.keys)
         return arr[:n_binary], self.bin_centers_deg[arr[n_binary:]]
 
     def _decode_box(self, arr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """float (25,) in [-1, 1] -> (bits (23,), camera float32 (2,) degrees)."""
+        """float (len(keys) + 2,) in [-1, 1] -> (bits (len(keys),), camera float32 (2,) degrees)."""
         if arr.dtype.kind not in "iuf":
             raise ValueError(f"flat action: expected a numeric array for Box, got dtype {arr.dtype}")
         arr = arr.astype(np.float64)  # range-check before any float32 rounding
         if not np.all(np.abs(arr) <= 1.0):  # also catches NaN
             i = int(np.flatnonzero(~(np.abs(arr) <= 1.0))[0])
-            raise ValueError(f"flat action: entry {i} ({_flat_entry_name(i)!r}) = {arr[i]} outside [-1, 1]")
-        n_binary = len(BINARY_KEYS)
+            raise ValueError(f"flat action: entry {i} ({self._entry_name(i)!r}) = {arr[i]} outside [-1, 1]")
+        n_binary = len(self.keys)
         return (arr[:n_binary] > 0).astype(np.int64), self._box_to_camera(arr[n_binary:])
 
     def _box_to_camera(self, value: np.ndarray) -> np.ndarray:

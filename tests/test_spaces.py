@@ -389,11 +389,50 @@ def test_codec_encode_noop_and_lossy_camera(kind):
         ({"camera_max_deg": 0.0}, "camera_max_deg"),
         ({"camera_max_deg": 200.0}, "camera_max_deg"),
         ({"kind": "discrete"}, "kind"),
+        ({"keys": ["fly"]}, "'fly' is not a binary key"),
+        ({"keys": ["use", "use"]}, "no repeats"),
+        ({"keys": "forward"}, "sequence of key names"),
     ],
 )
 def test_codec_rejects_bad_config(kwargs, match):
     with pytest.raises(ValueError, match=match):
         sp.FlatActionCodec(**kwargs)
+
+
+@pytest.mark.parametrize("kind", ["multidiscrete", "box"])
+def test_codec_key_subset_exposes_only_those_keys(kind):
+    codec = sp.FlatActionCodec(kind=kind, keys=("use", "forward"))
+    assert codec.space.shape == (4,)
+    if kind == "multidiscrete":
+        assert codec.space.nvec.tolist() == [2, 2, 11, 11]
+    codec.space.seed(0)
+    pressed = set()
+    for _ in range(50):
+        action = codec.decode(codec.space.sample())
+        assert sp.make_action_space().contains(action)
+        pressed |= {k for k in sp.BINARY_KEYS if action[k]}
+        again = codec.decode(codec.encode(action))
+        assert all(np.array_equal(again[k], action[k]) for k in sp.ACTION_KEYS)
+    assert pressed == {"use", "forward"}  # the order given is kept: entry 0 is "use"
+    assert codec.encode(_action(use=1))[0] in (1, 1.0) and codec.encode(_action(use=1))[1] in (0, -1.0)
+    with pytest.raises(ValueError, match="presses 'attack', which this codec does not expose"):
+        codec.encode(_action(attack=1))
+    with pytest.raises(ValueError, match=r"expected shape \(4,\)"):
+        codec.decode(np.zeros(25, np.int64 if kind == "multidiscrete" else np.float32))
+    bad = np.zeros(4, np.int64 if kind == "multidiscrete" else np.float32)
+    bad[1] = 5
+    with pytest.raises(ValueError, match="entry 1 \\('forward'\\)"):
+        codec.decode(bad)
+    rebuilt = sp.FlatActionCodec(**codec.config())
+    assert rebuilt.keys == codec.keys and rebuilt.space == codec.space
+
+
+def test_codec_camera_only():
+    codec = sp.FlatActionCodec(keys=())
+    assert codec.space.nvec.tolist() == [11, 11]
+    action = codec.decode(np.array([5, 10]))
+    assert action["camera"].tolist() == [0.0, 10.0] and not any(action[k] for k in sp.BINARY_KEYS)
+    assert sp.FlatActionCodec().config()["keys"] == list(sp.BINARY_KEYS)
 
 
 def test_codec_decode_errors():

@@ -1,8 +1,9 @@
 """``FlatActions``: the MineRL Dict action as a flat ``MultiDiscrete`` (camera in bins) or ``Box`` for SB3,
-through ``solaris_env.spaces.FlatActionCodec`` (25 entries: the 23 keys, then camera [dpitch, dyaw])."""
+through ``solaris_env.spaces.FlatActionCodec`` (the exposed keys -- all 23 by default -- then camera [dpitch, dyaw])."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import gymnasium as gym
@@ -18,13 +19,15 @@ class FlatActions(gym.ActionWrapper):
             (Box(-1, 1, (25,)): a key is pressed iff > 0, camera = value * camera_max_deg).
         camera_bins: odd number of camera bins per axis (multidiscrete).
         camera_max_deg: the largest camera turn per step, degrees.
+        keys: the binary keys the flat action exposes (None: all 23); the others are never pressed.
     """
 
-    def __init__(self, env: gym.Env, kind: str = "multidiscrete", camera_bins: int = 11, camera_max_deg: float = 10.0):
+    def __init__(self, env: gym.Env, kind: str = "multidiscrete", camera_bins: int = 11, camera_max_deg: float = 10.0,
+                 keys: Sequence[str] | None = None):
         super().__init__(env)
-        self.codec = FlatActionCodec(camera_bins=camera_bins, camera_max_deg=camera_max_deg, kind=kind)
+        self.codec = FlatActionCodec(camera_bins=camera_bins, camera_max_deg=camera_max_deg, kind=kind, keys=keys)
         self.action_space = self.codec.space
 
     def action(self, action: Any) -> dict[str, Any]:
-        """Flat (25,) -> env action; ValueError on a wrong shape, dtype or range."""
+        """Flat (len(keys) + 2,) -> env action; ValueError on a wrong shape, dtype or range."""
         return self.codec.decode(np.asarray(action))
