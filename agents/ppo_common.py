@@ -36,6 +36,7 @@ class PPOArgs:
     partner: str = arg("noop", "what drives the partner (Bravo): noop | random")
     keys: str = arg("task", "binary keys the policy may press: 'task' (TASK_KEYS[task]), 'all' (all 23), "
                             "'none' (camera only) or a comma list, e.g. forward,jump")
+    camera: str = arg("task", "camera axes the policy may turn: 'task' (TASK_CAMERA_AXES[task]), 'both', 'yaw', 'pitch'")
     camera_bins: int = arg(11, "camera bins per axis of the flat action (odd)")
     camera_max_deg: float = arg(10.0, "largest camera turn per step, degrees")
     n_steps: int = arg(128, "PPO rollout length per env before each update")
@@ -59,6 +60,8 @@ class PPOArgs:
         if self.world not in ("flat", "normal", "mixed"):
             raise ValueError(f"world must be 'flat', 'normal' or 'mixed', got {self.world!r}")
         self.policy_keys()  # fails early on an unknown key
+        if self.camera not in ("task", "both", "yaw", "pitch"):
+            raise ValueError(f"camera must be 'task', 'both', 'yaw' or 'pitch', got {self.camera!r}")
         for name in ("total_timesteps", "checkpoint_every", "max_steps", "start_states", "n_steps", "batch_size",
                      "n_epochs", "torch_threads"):
             if getattr(self, name) < 1:
@@ -82,20 +85,32 @@ class PPOArgs:
                              f"{list(BINARY_KEYS)}, got {self.keys!r}")
         return keys
 
+    def camera_axes(self) -> tuple[str, ...]:
+        """The camera axes of the flat action."""
+        if self.camera == "task":
+            return TASK_CAMERA_AXES[self.task]
+        return ("pitch", "yaw") if self.camera == "both" else (self.camera,)
+
     def codec(self):
         """The flat MultiDiscrete action encoding the policy acts in."""
         from solaris_env.spaces import FlatActionCodec
 
         return FlatActionCodec(camera_bins=self.camera_bins, camera_max_deg=self.camera_max_deg,
-                               kind="multidiscrete", keys=self.policy_keys())
+                               kind="multidiscrete", keys=self.policy_keys(), camera_axes=self.camera_axes())
 
 
-# The keys each task's policy may press besides the camera (action shaping, as MineRL agents do): a policy
-# exploring with all 23 keys spends its steps walking off, dropping items and opening the inventory.
+# The keys each task's policy may press and the camera axes it may turn (action shaping, as MineRL agents do): a
+# policy exploring with all 23 keys spends its steps walking off, dropping items and opening the inventory, and a
+# random walk in pitch ends up looking at the sky or the ground, where no partner is.
 TASK_KEYS: dict[str, tuple[str, ...]] = {
     "face_partner": (),  # turn to the partner: the camera alone
     "approach_partner": ("forward", "jump", "sprint"),
     "build_structure": ("forward", "jump", "sneak", "use"),
+}
+TASK_CAMERA_AXES: dict[str, tuple[str, ...]] = {
+    "face_partner": ("yaw",),  # the partner stands on the same ground: turn, do not look up or down
+    "approach_partner": ("yaw",),
+    "build_structure": ("pitch", "yaw"),  # placing needs a look at the ground
 }
 
 

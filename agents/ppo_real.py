@@ -62,7 +62,7 @@ def make_env(args: Args, start_states: list):
         env = make_real(
             opponent=args.partner,
             flatten="multidiscrete", camera_bins=args.camera_bins, camera_max_deg=args.camera_max_deg,
-            flatten_keys=args.policy_keys(),
+            flatten_keys=args.policy_keys(), flatten_camera_axes=args.camera_axes(),
             num_players=2, world=args.world, resolution=args.resolution, view_distance=args.view_distance,
             max_steps=args.max_steps, ticks_per_step=args.ticks_per_step,
             task=JUDGED_TASKS[args.task](source="truth"),

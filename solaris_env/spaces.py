@@ -38,6 +38,7 @@ BINARY_KEYS = (
     "attack", "use", "drop", "inventory", "ESC", "swapHands", "pickItem",
 ) + HOTBAR_KEYS
 CAMERA_KEY = "camera"
+CAMERA_AXES = ("pitch", "yaw")  # the camera action is [dpitch, dyaw] degrees (MineRL)
 ACTION_KEYS = BINARY_KEYS + (CAMERA_KEY,)
 CAMERA_LIMIT_DEG = 180.0  # env camera bound per step, both axes, inclusive
 
@@ -394,18 +395,19 @@ def vpt_jsonl_to_vectors(lines_or_objs: Iterable[str | Mapping[str, Any]]) -> np
 class FlatActionCodec:
     """Flat, SB3-friendly encoding of the env action, and back.
 
-    Layout (``len(keys) + 2`` entries): the exposed binary ``keys`` (default: all 23 ``BINARY_KEYS``, in
-    that order), then camera [dpitch, dyaw] (MineRL). Keys left out are never pressed: a policy that only
-    needs to look around (``keys=()``) does not explore by dropping items or opening the inventory.
+    Layout (``len(keys) + len(camera_axes)`` entries): the exposed binary ``keys`` (default: all 23
+    ``BINARY_KEYS``, in that order), then the exposed camera axes (default [dpitch, dyaw], MineRL). Keys and
+    axes left out stay 0: a policy that only needs to turn (``keys=(), camera_axes=("yaw",)``) does not
+    explore by dropping items, opening the inventory or staring at the sky.
 
-    * ``kind="multidiscrete"``: ``MultiDiscrete([2]*len(keys) + [camera_bins]*2)``. Camera bin i is
+    * ``kind="multidiscrete"``: ``MultiDiscrete([2]*len(keys) + [camera_bins]*len(camera_axes))``. Camera bin i is
       ``camera_max_deg * (i - c) / c`` degrees with c = camera_bins // 2: linear, symmetric,
       exact 0 at the centre bin, ends at ±camera_max_deg.
-    * ``kind="box"``: ``Box(-1, 1, (len(keys) + 2,), float32)``. A binary key is 1 iff its value > 0 (encode
+    * ``kind="box"``: ``Box(-1, 1, (len(keys) + len(camera_axes),), float32)``. A binary key is 1 iff its value > 0 (encode
       writes +1/-1); camera degrees = value * camera_max_deg.
 
     ``encode`` is lossy for the camera (snapped to the nearest bin, or clipped to
-    ±camera_max_deg for "box") and raises on a pressed key that is not exposed;
+    ±camera_max_deg for "box") and raises on a pressed key or a turn about an axis that is not exposed;
     ``decode(encode(decode(x))) == decode(x)`` holds exactly.
 
     Args:
@@ -414,6 +416,8 @@ class FlatActionCodec:
         kind: "multidiscrete" or "box".
         keys: the binary keys the flat action exposes (a subset of ``BINARY_KEYS``, no repeats; any order,
             kept); None = all of them.
+        camera_axes: the camera axes the flat action exposes, in MineRL's order: ("pitch", "yaw") (default),
+            ("yaw",), ("pitch",) or ().
     """
 
     def __init__(
@@ -422,6 +426,7 @@ class FlatActionCodec:
         camera_max_deg: float = 10.0,
         kind: Literal["multidiscrete", "box"] = "multidiscrete",
         keys: Sequence[str] | None = None,
+        camera_axes: Sequence[str] = CAMERA_AXES,
     ) -> None:
         if kind not in ("multidiscrete", "box"):
             raise ValueError(f"kind: expected 'multidiscrete' or 'box', got {kind!r}")
@@ -430,6 +435,11 @@ class FlatActionCodec:
         if not (0.0 < camera_max_deg <= CAMERA_LIMIT_DEG):
             raise ValueError(f"camera_max_deg: expected a value in (0, {CAMERA_LIMIT_DEG}], got {camera_max_deg!r}")
         self.keys = BINARY_KEYS if keys is None else self._check_keys(keys)
+        ordered = tuple(a for a in CAMERA_AXES if a in tuple(camera_axes))
+        if isinstance(camera_axes, str) or ordered != tuple(camera_axes):
+            raise ValueError(f"camera_axes: expected a subsequence of {list(CAMERA_AXES)}, got {camera_axes!r}")
+        self.camera_axes = tuple(camera_axes)
+        self._axis_index = np.array([CAMERA_AXES.index(a) for a in self.camera_axes], dtype=np.int64)
         self.kind = kind
         self.camera_bins = int(camera_bins)
         self.camera_max_deg = float(camera_max_deg)
@@ -452,56 +462,62 @@ class FlatActionCodec:
     def config(self) -> dict[str, Any]:
         """The constructor arguments (JSON-able): ``FlatActionCodec(**codec.config())`` rebuilds it."""
         return {"kind": self.kind, "camera_bins": self.camera_bins, "camera_max_deg": self.camera_max_deg,
-                "keys": list(self.keys)}
+                "keys": list(self.keys), "camera_axes": list(self.camera_axes)}
 
     def _entry_name(self, i: int) -> str:
         """Name of flat entry i: an exposed key, or camera[0] (dpitch) / camera[1] (dyaw)."""
         n_binary = len(self.keys)
-        return self.keys[i] if i < n_binary else f"{CAMERA_KEY}[{i - n_binary}]"
+        return self.keys[i] if i < n_binary else f"{CAMERA_KEY}[{self._axis_index[i - n_binary]}]"
 
     def _make_space(self) -> spaces.Space:
-        n_binary = len(self.keys)
+        n_binary, n_axes = len(self.keys), len(self.camera_axes)
+        if n_binary + n_axes == 0:
+            raise ValueError("keys and camera_axes: expected at least one key or camera axis, got neither")
         if self.kind == "multidiscrete":
-            return spaces.MultiDiscrete([2] * n_binary + [self.camera_bins] * 2)
-        return spaces.Box(-1.0, 1.0, shape=(n_binary + 2,), dtype=np.float32)
+            return spaces.MultiDiscrete([2] * n_binary + [self.camera_bins] * n_axes)
+        return spaces.Box(-1.0, 1.0, shape=(n_binary + n_axes,), dtype=np.float32)
 
     # -- encode -----------------------------------------------------------------------------
 
     def encode(self, env_action: Mapping[str, Any]) -> np.ndarray:
-        """Env action -> flat (len(keys) + 2,) (int64 for "multidiscrete", float32 for "box"); camera is lossy.
-        ValueError if the action presses a key this codec does not expose."""
+        """Env action -> flat (len(keys) + len(camera_axes),) (int64 for "multidiscrete", float32 for "box");
+        camera is lossy. ValueError if the action presses a key or turns about an axis this codec does not expose."""
         action = validate_action(env_action)
         hidden = [key for key in BINARY_KEYS if action[key] and key not in self.keys]
         if hidden:
             raise ValueError(f"action presses {hidden[0]!r}, which this codec does not expose (keys={list(self.keys)})")
         bits = np.array([action[key] for key in self.keys], dtype=np.int64)
-        camera = action[CAMERA_KEY].astype(np.float64)
+        hidden_axes = [a for i, a in enumerate(CAMERA_AXES) if action[CAMERA_KEY][i] and a not in self.camera_axes]
+        if hidden_axes:
+            raise ValueError(f"action turns the camera about {hidden_axes[0]!r}, which this codec does not expose "
+                             f"(camera_axes={list(self.camera_axes)})")
+        camera = action[CAMERA_KEY].astype(np.float64)[self._axis_index]
         if self.kind == "multidiscrete":
             return np.concatenate([bits, self._camera_to_bins(camera)]).astype(np.int64)
         return np.concatenate([2.0 * bits - 1.0, self._camera_to_box(camera)]).astype(np.float32)
 
     def _camera_to_bins(self, camera_deg: np.ndarray) -> np.ndarray:
-        """Nearest bin index (2,) per axis; values beyond ±camera_max_deg land in the end bins."""
+        """Nearest bin index per exposed axis; values beyond ±camera_max_deg land in the end bins."""
         half = self.camera_bins // 2
         index = np.rint(camera_deg / self.camera_max_deg * half) + half
         return np.clip(index, 0, self.camera_bins - 1).astype(np.int64)
 
     def _camera_to_box(self, camera_deg: np.ndarray) -> np.ndarray:
-        """float32 (2,) in [-1, 1] whose decode is nearest to camera_deg (exact if camera_deg came from decode)."""
+        """float32 (n_axes,) in [-1, 1] whose decode is nearest to camera_deg (exact if camera_deg came from decode)."""
         guess = np.clip(camera_deg / self.camera_max_deg, -1.0, 1.0).astype(np.float32)
         candidates = np.stack([
             np.nextafter(guess, np.float32(-1.0)), guess, np.nextafter(guess, np.float32(1.0)),
-        ])  # (3, 2); float32 division can land one ulp off the value decode started from
+        ])  # (3, n_axes); float32 division can land one ulp off the value decode started from
         error = np.abs(self._box_to_camera(candidates) - camera_deg)
-        return candidates[np.argmin(error, axis=0), np.arange(2)]
+        return candidates[np.argmin(error, axis=0), np.arange(len(camera_deg))]
 
     # -- decode -----------------------------------------------------------------------------
 
     def decode(self, flat: Any) -> dict[str, Any]:
-        """Flat (len(keys) + 2,) -> validated env action dict (keys not exposed: 0); ValueError on wrong shape,
-        dtype or range."""
+        """Flat (len(keys) + len(camera_axes),) -> validated env action dict (keys and axes not exposed: 0);
+        ValueError on wrong shape, dtype or range."""
         arr = np.asarray(flat)
-        n_flat = len(self.keys) + 2
+        n_flat = len(self.keys) + len(self.camera_axes)
         if arr.shape != (n_flat,):
             raise ValueError(f"flat action: expected shape ({n_flat},), got {arr.shape}")
         if self.kind == "multidiscrete":
@@ -510,11 +526,12 @@ class FlatActionCodec:
             bits, camera = self._decode_box(arr)
         action: dict[str, Any] = dict.fromkeys(BINARY_KEYS, 0)
         action.update({key: int(b) for key, b in zip(self.keys, bits)})
-        action[CAMERA_KEY] = camera
+        action[CAMERA_KEY] = np.zeros(2, dtype=np.float32)
+        action[CAMERA_KEY][self._axis_index] = camera
         return validate_action(action)
 
     def _decode_multidiscrete(self, arr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Integer (len(keys) + 2,) -> (bits (len(keys),), camera float32 (2,) degrees)."""
+        """Integer (len(keys) + n_axes,) -> (bits (len(keys),), camera float32 (n_axes,) degrees)."""
         if arr.dtype.kind not in "iu":
             raise ValueError(f"flat action: expected an integer array for MultiDiscrete, got dtype {arr.dtype}")
         bad = np.flatnonzero((arr < 0) | (arr >= self.space.nvec))
@@ -526,7 +543,7 @@ class FlatActionCodec:
         return arr[:n_binary], self.bin_centers_deg[arr[n_binary:]]
 
     def _decode_box(self, arr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """float (len(keys) + 2,) in [-1, 1] -> (bits (len(keys),), camera float32 (2,) degrees)."""
+        """float (len(keys) + n_axes,) in [-1, 1] -> (bits (len(keys),), camera float32 (n_axes,) degrees)."""
         if arr.dtype.kind not in "iuf":
             raise ValueError(f"flat action: expected a numeric array for Box, got dtype {arr.dtype}")
         arr = arr.astype(np.float64)  # range-check before any float32 rounding

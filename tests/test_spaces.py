@@ -392,6 +392,11 @@ def test_codec_encode_noop_and_lossy_camera(kind):
         ({"keys": ["fly"]}, "'fly' is not a binary key"),
         ({"keys": ["use", "use"]}, "no repeats"),
         ({"keys": "forward"}, "sequence of key names"),
+        ({"camera_axes": ("yaw", "pitch")}, "camera_axes"),
+        ({"camera_axes": ("roll",)}, "camera_axes"),
+        ({"camera_axes": ("yaw", "yaw")}, "camera_axes"),
+        ({"camera_axes": "yaw"}, "camera_axes"),
+        ({"keys": (), "camera_axes": ()}, "at least one key or camera axis"),
     ],
 )
 def test_codec_rejects_bad_config(kwargs, match):
@@ -433,6 +438,32 @@ def test_codec_camera_only():
     action = codec.decode(np.array([5, 10]))
     assert action["camera"].tolist() == [0.0, 10.0] and not any(action[k] for k in sp.BINARY_KEYS)
     assert sp.FlatActionCodec().config()["keys"] == list(sp.BINARY_KEYS)
+
+
+@pytest.mark.parametrize("kind", ["multidiscrete", "box"])
+@pytest.mark.parametrize("axes", [("yaw",), ("pitch",)])
+def test_codec_single_camera_axis(kind, axes):
+    codec = sp.FlatActionCodec(kind=kind, keys=("jump",), camera_axes=axes)
+    assert codec.space.shape == (2,)
+    axis = sp.CAMERA_AXES.index(axes[0])
+    codec.space.seed(0)
+    turned = 0.0
+    for _ in range(30):
+        action = codec.decode(codec.space.sample())
+        assert action["camera"][1 - axis] == 0.0
+        turned = max(turned, abs(float(action["camera"][axis])))
+        again = codec.decode(codec.encode(action))
+        assert all(np.array_equal(again[k], action[k]) for k in sp.ACTION_KEYS)
+    assert turned > 0
+    camera = np.zeros(2, np.float32)
+    camera[1 - axis] = 3.0
+    with pytest.raises(ValueError, match=f"about {sp.CAMERA_AXES[1 - axis]!r}"):
+        codec.encode(_action(camera=camera))
+    bad = np.zeros(2, np.int64 if kind == "multidiscrete" else np.float32)
+    bad[1] = 40
+    with pytest.raises(ValueError, match=f"entry 1 \\('camera\\[{axis}\\]'\\)"):
+        codec.decode(bad)
+    assert sp.FlatActionCodec(**codec.config()).space == codec.space
 
 
 def test_codec_decode_errors():

@@ -84,7 +84,8 @@ class SingleAgentEnv(gym.Env):
 
 
 def _wrap(parallel: Any, agent: str | None, opponent: Any, resize: Any, frame_stack: int | None,
-          flatten: str | None, camera_bins: int, camera_max_deg: float, flatten_keys: Any) -> gym.Env:
+          flatten: str | None, camera_bins: int, camera_max_deg: float, flatten_keys: Any,
+          flatten_camera_axes: Any) -> gym.Env:
     from solaris_env.wrappers.observations import ResizeFrames, StackFrames
 
     if resize is not None:
@@ -95,31 +96,32 @@ def _wrap(parallel: Any, agent: str | None, opponent: Any, resize: Any, frame_st
     if flatten is not None:
         from solaris_env.wrappers.actions import FlatActions
 
-        env = FlatActions(env, kind=flatten, camera_bins=camera_bins, camera_max_deg=camera_max_deg, keys=flatten_keys)
+        env = FlatActions(env, kind=flatten, camera_bins=camera_bins, camera_max_deg=camera_max_deg, keys=flatten_keys,
+                          camera_axes=flatten_camera_axes)
     return env
 
 
 def make_dream(agent: str | None = None, opponent: Any = "random", resize: Any = None, frame_stack: int | None = None,
                flatten: str | None = None, camera_bins: int = 11, camera_max_deg: float = 10.0,
-               flatten_keys: Any = None, **dream_kwargs) -> gym.Env:
+               flatten_keys: Any = None, flatten_camera_axes: Any = ("pitch", "yaw"), **dream_kwargs) -> gym.Env:
     """``solaris_env/Dream-v0``: ``DreamParallelEnv(**dream_kwargs)`` seen by one agent (see ``_wrap``'s args:
-    ``resize`` (h, w) or int, ``frame_stack`` n, ``flatten`` None / "multidiscrete" / "box", ``flatten_keys`` the
-    binary keys the flat action exposes, None = all)."""
+    ``resize`` (h, w) or int, ``frame_stack`` n, ``flatten`` None / "multidiscrete" / "box", ``flatten_keys`` /
+    ``flatten_camera_axes`` the binary keys (None = all) and camera axes the flat action exposes)."""
     from solaris_env.dream_env import DreamParallelEnv
 
     return _wrap(DreamParallelEnv(**dream_kwargs), agent, opponent, resize, frame_stack, flatten, camera_bins,
-                 camera_max_deg, flatten_keys)
+                 camera_max_deg, flatten_keys, flatten_camera_axes)
 
 
 def make_real(agent: str | None = None, opponent: Any = "bot", resize: Any = None, frame_stack: int | None = None,
               flatten: str | None = None, camera_bins: int = 11, camera_max_deg: float = 10.0,
-              flatten_keys: Any = None, **real_kwargs) -> gym.Env:
+              flatten_keys: Any = None, flatten_camera_axes: Any = ("pitch", "yaw"), **real_kwargs) -> gym.Env:
     """``solaris_env/Real-v0``: ``RealParallelEnv(**real_kwargs)`` seen by one agent; the others are scripted
     engine bots by default."""
     from solaris_env.real_env import RealParallelEnv
 
     return _wrap(RealParallelEnv(**real_kwargs), agent, opponent, resize, frame_stack, flatten, camera_bins,
-                 camera_max_deg, flatten_keys)
+                 camera_max_deg, flatten_keys, flatten_camera_axes)
 
 
 from solaris_env.registration import ENV_IDS, register_envs  # noqa: F401 - re-exported

@@ -11,7 +11,7 @@ import pytest
 from agents import evaluate, ppo_dream, ppo_real, transfer
 from agents.common import parse_args
 from agents.policies import PPOPolicy, make_policy
-from agents.ppo_common import TASK_KEYS
+from agents.ppo_common import TASK_CAMERA_AXES, TASK_KEYS
 from solaris_env.spaces import BINARY_KEYS, validate_action
 from solaris_env.tasks import JUDGED_TASKS
 
@@ -37,7 +37,7 @@ def test_ppo_real_writes_checkpoints_that_load_and_act(real_run, real):
     meta = json.loads((checkpoints / "step_000000064.json").read_text())
     assert meta["env"] == "real" and meta["task"] == "face_partner" and meta["step"] == 64
     assert meta["frames_per_step"] == 4 and meta["obs_shape"] == [36, 36, 3]
-    assert meta["codec"]["keys"] == []  # face_partner's policy turns the camera only (TASK_KEYS)
+    assert meta["codec"]["keys"] == [] and meta["codec"]["camera_axes"] == ["yaw"]  # face_partner: turn only
 
     policy = make_policy(f"ppo:{checkpoints / 'step_000000064.zip'}")
     assert isinstance(policy, PPOPolicy) and policy.model.num_timesteps == 64
@@ -47,7 +47,8 @@ def test_ppo_real_writes_checkpoints_that_load_and_act(real_run, real):
     for _ in range(3):
         action = policy.act(obs["Alpha"])
         validate_action(action)
-        assert np.abs(action["camera"]).max() <= 10.0 and not any(action[k] for k in BINARY_KEYS)
+        assert np.abs(action["camera"]).max() <= 10.0 and action["camera"][0] == 0.0
+        assert not any(action[k] for k in BINARY_KEYS)
         obs, *_ = env.step({"Alpha": action, "Bravo": make_policy("noop").act(obs["Bravo"])})
     big = cv2.resize(obs["Alpha"], (64, 64))  # another resolution: resized to the policy's input
     assert policy.act(big).keys() == action.keys()
@@ -112,8 +113,12 @@ def test_script_arguments_are_checked():
     assert set(TASK_KEYS) == set(JUDGED_TASKS)
     assert parse_args(ppo_real.Args, ["--task", "approach_partner"]).policy_keys() == TASK_KEYS["approach_partner"]
     assert parse_args(ppo_real.Args, ["--keys", "jump, use"]).codec().keys == ("jump", "use")
-    assert parse_args(ppo_real.Args, ["--keys", "all"]).codec().space.shape == (25,)
-    assert parse_args(ppo_real.Args, ["--keys", "none"]).codec().space.shape == (2,)
+    assert parse_args(ppo_real.Args, ["--keys", "all", "--camera", "both"]).codec().space.shape == (25,)
+    assert parse_args(ppo_real.Args, ["--keys", "none"]).codec().space.shape == (1,)  # + yaw
+    assert parse_args(ppo_real.Args, ["--keys", "none", "--camera", "both"]).codec().space.shape == (2,)
+    assert set(TASK_CAMERA_AXES) == set(JUDGED_TASKS)
+    with pytest.raises(ValueError, match="camera must be"):
+        parse_args(ppo_real.Args, ["--camera", "roll"])
     args = parse_args(ppo_dream.Args, ["--preset", "test", "--obs-size", "none", "--seed", "3"])
     assert args.preset == "test" and args.obs_size is None and args.seed == 3 and args.checkpoint is None
     assert parse_args(evaluate.Args, ["--policies", "noop", "spin:5"]).policies == ["noop", "spin:5"]
