@@ -49,6 +49,8 @@ class PPOArgs:
     ent_coef: float = arg(0.01, "entropy bonus")
     vf_coef: float = arg(0.5, "value-loss weight")
     torch_threads: int = arg(1, "torch CPU threads (small convs are fastest single-threaded on these VMs)")
+    resume: bool = arg(True, "continue from the newest checkpoint in <out>/checkpoints (up to --total-timesteps); "
+                             "--no-resume starts over")
 
     def __post_init__(self):
         from solaris_env.tasks import JUDGED_TASKS
@@ -126,6 +128,47 @@ def run_dir(args: PPOArgs, script: str) -> Path:
 
 
 # ---------------------------------------------------------------------------------------------
+# The agent: new or resumed
+# ---------------------------------------------------------------------------------------------
+
+
+def latest_checkpoint(directory: Path) -> Path | None:
+    """The ``step_<timesteps>.zip`` of ``directory`` with the most steps (and a sidecar), or None."""
+    found = [p for p in Path(directory).glob("step_*.zip") if p.with_suffix(".json").is_file()]
+    return max(found, key=lambda p: int(p.stem.split("_")[1]), default=None)
+
+
+def make_ppo(args: PPOArgs, envs: VecEnv, out: Path) -> Any:
+    """SB3 PPO (CnnPolicy) on ``envs``, logging to stdout and ``<out>/progress.csv``; with ``args.resume`` and a
+    checkpoint in ``<out>/checkpoints``, the newest one is loaded (weights, optimiser, step count) and the old
+    ``progress.csv`` is kept as ``progress-<step>.csv`` (SB3's logger starts the file anew)."""
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.logger import configure
+
+    last = latest_checkpoint(out / "checkpoints") if args.resume else None
+    if last is None:
+        model = PPO("CnnPolicy", envs, seed=args.seed, device="cpu", verbose=1, **ppo_kwargs(args))
+    else:
+        model = PPO.load(last, env=envs, device="cpu", **ppo_kwargs(args))
+        model.set_random_seed(args.seed + model.num_timesteps)  # a fresh stream, reproducible per resume point
+        log = out / "progress.csv"
+        if log.is_file():
+            os.replace(log, out / f"progress-{model.num_timesteps:09d}.csv")
+        print(f"resumed from {last} at {model.num_timesteps} steps", flush=True)
+    model.set_logger(configure(str(out), ["stdout", "csv"]))
+    return model
+
+
+def learn(model: Any, args: PPOArgs, checkpoints: CheckpointEvery) -> None:
+    """Train up to ``args.total_timesteps`` learner steps in all (a resumed model counts its past steps)."""
+    checkpoints.start_at(model.num_timesteps)
+    remaining = args.total_timesteps - model.num_timesteps
+    if remaining > 0:
+        model.learn(total_timesteps=remaining, callback=checkpoints, reset_num_timesteps=model.num_timesteps == 0)
+        checkpoints.save_last()
+
+
+# ---------------------------------------------------------------------------------------------
 # Checkpoints
 # ---------------------------------------------------------------------------------------------
 
@@ -171,6 +214,10 @@ class CheckpointEvery(BaseCallback):
         if self.num_timesteps // self.every > self._last_saved_step // self.every:
             self._save(self.num_timesteps)
         return True
+
+    def start_at(self, step: int) -> None:
+        """A resumed run: the checkpoint of ``step`` exists already."""
+        self._last_saved_step = int(step)
 
     def save_last(self) -> None:
         if self.model.num_timesteps != self._last_saved_step:

@@ -10,6 +10,9 @@ The learner is Alpha in ``--num-worlds`` two-player dream worlds stepped in ONE 
 the engine renders them, the model continues). The reward is the judge variant of the task (``source="judge"``).
 Checkpoints: ``<out>/checkpoints/step_<timesteps>.zip`` + ``.json`` every ``--checkpoint-every`` steps;
 SB3's logs (episode return ``rollout/ep_rew_mean``, losses, fps) go to stdout and ``<out>/progress.csv``.
+The same command again resumes from the newest checkpoint up to ``--total-timesteps`` (``--no-resume`` starts
+over). Actions: the flat MultiDiscrete of the task's keys and camera axes only (``ppo_common.TASK_KEYS`` /
+``TASK_CAMERA_AXES``; ``--keys``, ``--camera``): face_partner turns in yaw and presses nothing.
 ``--preset test --obs-size 36`` runs the random-init test model (the smoke test).
 """
 
@@ -31,7 +34,8 @@ from agents.ppo_common import (
     PPOArgs,
     VecResize,
     checkpoint_meta,
-    ppo_kwargs,
+    learn,
+    make_ppo,
     run_dir,
 )
 
@@ -75,8 +79,6 @@ def main(argv: list[str] | None = None) -> None:
 
     # ---- setup -----------------------------------------------------------------------------
     import torch
-    from stable_baselines3 import PPO
-    from stable_baselines3.common.logger import configure
 
     from solaris_env.dream_env import build_model
 
@@ -95,8 +97,7 @@ def main(argv: list[str] | None = None) -> None:
           f"{len(start_states)} start states, built in {time.perf_counter() - t0:.0f} s", flush=True)
 
     # ---- agent -----------------------------------------------------------------------------
-    model = PPO("CnnPolicy", envs, seed=args.seed, device="cpu", verbose=1, **ppo_kwargs(args))
-    model.set_logger(configure(str(out), ["stdout", "csv"]))
+    model = make_ppo(args, envs, out)  # new, or resumed from <out>/checkpoints
     batch = args.n_steps * envs.num_envs  # derived: learner steps per PPO update
     print(f"ppo_dream: task={args.task} worlds={args.num_worlds} obs={envs.observation_space.shape} "
           f"steps/update={batch} updates={-(-args.total_timesteps // batch)} out={out}", flush=True)
@@ -106,10 +107,11 @@ def main(argv: list[str] | None = None) -> None:
                                   checkpoint_meta(args, "dream", envs.observation_space.shape,
                                                   world_model.frames_per_step))
     t0 = time.perf_counter()
-    model.learn(total_timesteps=args.total_timesteps, callback=checkpoints)
-    checkpoints.save_last()
+    start = model.num_timesteps
+    learn(model, args, checkpoints)
     wall = time.perf_counter() - t0
-    print(f"done: {model.num_timesteps} steps in {wall:.0f} s ({model.num_timesteps / wall:.1f} SPS); "
+    print(f"done: {model.num_timesteps} steps ({model.num_timesteps - start} this run) in {wall:.0f} s "
+          f"({(model.num_timesteps - start) / max(wall, 1e-9):.1f} SPS); "
           f"{len(checkpoints.saved)} checkpoints in {out / 'checkpoints'}", flush=True)
     envs.close()
 

@@ -10,6 +10,9 @@ start from ``--start-states`` engine states where Alpha was turned away by a ran
 (``agents.common.make_start_states``). The task's reward comes from the engine (``<task>_truth``).
 Checkpoints: ``<out>/checkpoints/step_<timesteps>.zip`` + ``.json`` every ``--checkpoint-every`` steps;
 SB3's logs (episode return ``rollout/ep_rew_mean``, losses, fps) go to stdout and ``<out>/progress.csv``.
+The same command again resumes from the newest checkpoint up to ``--total-timesteps`` (``--no-resume`` starts
+over). Actions: the flat MultiDiscrete of the task's keys and camera axes only (``ppo_common.TASK_KEYS`` /
+``TASK_CAMERA_AXES``; ``--keys``, ``--camera``): face_partner turns in yaw and presses nothing.
 Measured speed is in the docstring of ``agents/evaluate.py`` once the lead has run it.
 """
 
@@ -30,7 +33,8 @@ from agents.ppo_common import (
     CheckpointEvery,
     PPOArgs,
     checkpoint_meta,
-    ppo_kwargs,
+    learn,
+    make_ppo,
     run_dir,
 )
 
@@ -79,8 +83,6 @@ def main(argv: list[str] | None = None) -> None:
 
     # ---- setup -----------------------------------------------------------------------------
     import torch
-    from stable_baselines3 import PPO
-    from stable_baselines3.common.logger import configure
     from stable_baselines3.common.vec_env import DummyVecEnv
 
     torch.set_num_threads(args.torch_threads)
@@ -93,8 +95,7 @@ def main(argv: list[str] | None = None) -> None:
     envs = DummyVecEnv([make_env(args, start_states) for _ in range(args.num_envs)])
 
     # ---- agent -----------------------------------------------------------------------------
-    model = PPO("CnnPolicy", envs, seed=args.seed, device="cpu", verbose=1, **ppo_kwargs(args))
-    model.set_logger(configure(str(out), ["stdout", "csv"]))
+    model = make_ppo(args, envs, out)  # new, or resumed from <out>/checkpoints
     batch = args.n_steps * args.num_envs  # derived: learner steps per PPO update
     print(f"ppo_real: task={args.task} envs={args.num_envs} obs={envs.observation_space.shape} "
           f"steps/update={batch} updates={-(-args.total_timesteps // batch)} out={out}", flush=True)
@@ -103,10 +104,11 @@ def main(argv: list[str] | None = None) -> None:
     checkpoints = CheckpointEvery(args.checkpoint_every, out / "checkpoints",
                                   checkpoint_meta(args, "real", envs.observation_space.shape, args.ticks_per_step))
     t0 = time.perf_counter()
-    model.learn(total_timesteps=args.total_timesteps, callback=checkpoints)
-    checkpoints.save_last()
+    start = model.num_timesteps
+    learn(model, args, checkpoints)
     wall = time.perf_counter() - t0
-    print(f"done: {model.num_timesteps} steps in {wall:.0f} s ({model.num_timesteps / wall:.1f} SPS); "
+    print(f"done: {model.num_timesteps} steps ({model.num_timesteps - start} this run) in {wall:.0f} s "
+          f"({(model.num_timesteps - start) / max(wall, 1e-9):.1f} SPS); "
           f"{len(checkpoints.saved)} checkpoints in {out / 'checkpoints'}", flush=True)
     envs.close()
 

@@ -3,6 +3,7 @@ real engine and in the dream writes checkpoints that load and act; evaluate.py a
 (and plot) atomically with the promised fields."""
 
 import json
+import shutil
 
 import cv2
 import numpy as np
@@ -53,6 +54,22 @@ def test_ppo_real_writes_checkpoints_that_load_and_act(real_run, real):
     big = cv2.resize(obs["Alpha"], (64, 64))  # another resolution: resized to the policy's input
     assert policy.act(big).keys() == action.keys()
     assert all(np.array_equal(policy.act(obs["Alpha"])[k], policy.act(obs["Alpha"])[k]) for k in action)
+
+
+def test_ppo_real_resumes_from_its_newest_checkpoint(real_run, tmp_path):
+    out = tmp_path / "run"
+    shutil.copytree(real_run, out)
+    first = (out / "progress.csv").read_text()
+    ppo_real.main([*TINY_PPO, "--task", "face_partner", "--num-envs", "2", "--resolution", "36", "--out", str(out),
+                   "--total-timesteps", "96"])
+    names = sorted(p.name for p in (out / "checkpoints").glob("*.zip"))
+    assert names == ["step_000000032.zip", "step_000000064.zip", "step_000000096.zip"]
+    assert PPOPolicy(out / "checkpoints" / "step_000000096.zip").model.num_timesteps == 96
+    assert (out / "progress-000000064.csv").read_text() == first  # the first run's log is kept
+    assert len((out / "progress.csv").read_text().splitlines()) == 2  # header + the one update of this run
+    ppo_real.main([*TINY_PPO, "--task", "face_partner", "--num-envs", "2", "--resolution", "36", "--out", str(out),
+                   "--total-timesteps", "96"])  # already there: nothing to train, nothing new saved
+    assert len(list((out / "checkpoints").glob("*.zip"))) == 3
 
 
 @pytest.mark.slow
