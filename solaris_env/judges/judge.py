@@ -25,7 +25,13 @@ from solaris_env.judges.episodes import resize_frame
 from solaris_env.judges.probe import Probe, load_probe
 
 DEFAULT_WEIGHTS = Path(__file__).resolve().parent.parent / "assets" / "judges"
-CHUNK = 64  # queries per jitted forward (the last chunk is padded)
+CHUNK = 64  # queries per jitted forward at most (a smaller last chunk is padded to a power of two)
+
+
+def _padded_size(n: int) -> int:
+    """The batch a chunk of ``n`` queries runs at: the next power of two, at most ``CHUNK`` (few compiled shapes;
+    an env step's 2 frames no longer pay for 64)."""
+    return min(CHUNK, 1 << max(n - 1, 0).bit_length())
 
 
 def _forward(graphdef, state, x_BFHWC):
@@ -100,10 +106,11 @@ class Judge:
         out = []
         for i in range(0, N, CHUNK):
             chunk = x_NFHWC[i:i + CHUNK]
-            pad = CHUNK - len(chunk)
+            size = _padded_size(len(chunk))
+            pad = size - len(chunk)
             if pad:
                 chunk = np.concatenate([chunk, np.zeros((pad, *chunk.shape[1:]), chunk.dtype)])
-            out.append(np.asarray(_forward_jit(graphdef, state, chunk))[:CHUNK - pad])
+            out.append(np.asarray(_forward_jit(graphdef, state, chunk))[:size - pad])
         return np.concatenate(out) if out else np.zeros((0, questions.get(question).num_answers), np.float32)
 
     def answer(self, question: str, *frames) -> list[str]:

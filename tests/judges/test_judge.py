@@ -46,6 +46,8 @@ def test_batches_single_frames_and_sizes_agree(small_judge):
     batched = small_judge.probabilities("position", x)
     one = small_judge.probabilities("position", x[3])  # (H, W, 3) is a batch of one
     np.testing.assert_allclose(one[0], batched[3], rtol=1e-5, atol=1e-6)
+    for n in (2, 3, 5, 33):  # padded to 2, 4, 8, 64: padding never leaks into the answers
+        np.testing.assert_allclose(small_judge.probabilities("position", x[:n]), batched[:n], rtol=1e-5, atol=1e-6)
     big = np.repeat(np.repeat(x[:4], 4, axis=1), 4, axis=2)  # 64x64 -> resized back to 16x16 (INTER_AREA)
     np.testing.assert_allclose(small_judge.probabilities("position", big), batched[:4], rtol=1e-4, atol=1e-5)
     assert small_judge.probabilities("visible", frames(0)).shape == (0, 2)
