@@ -29,7 +29,14 @@ and per task (the mean of its types), mean ± population std over trials. Fréch
 (and per type): ALL T frames of both players of the task's episodes, generated vs the GT frames they
 show (s + 1 .. s + T), in judge features (``solaris_env.judges.features``: the penultimate activations
 of the visible / position / structure probes, 192-d) -- an in-domain Fréchet distance, NOT FID: it is
-comparable between rows of this table only. ``--inception-weights`` (true FID) is not supported yet.
+comparable between rows of this table only.
+
+FID (``--inception-weights PATH``, the user's copy of pytorch-fid's ``pt_inception-2015-12-05-6726825d.pth``;
+nothing is downloaded): the same frames also get a true FID, in the 2048-d pool3 features of the FID
+InceptionV3 (``solaris_env.judges.inception``), stored as ``fid`` next to ``frechet`` in every row and
+trial and shown as an extra "FID" column per task. The frames (64 x 64 for the shipped model) are
+upsampled bilinearly to 299 x 299, so these FIDs compare with other FIDs only at that resolution and
+resizing. Cost: ~6 GFLOP per frame (~230k frames for 112 episodes x 3 seeds: hours on 2 CPU cores).
 
 Writes ``benchmarks/results/eval_tasks.json`` (per trial, per type, per task, timings, machine) and
 prints the Markdown table in the layout of the paper's Table 3.
@@ -44,7 +51,7 @@ import sys
 import time
 from collections import defaultdict
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -160,11 +167,12 @@ def copy_first_frame_source(segments: Sequence[Segment]) -> Callable[[Episode, s
 @dataclass
 class GeneratedVideos:
     """The query frames of generated videos, keyed (episode key, bot, generated index), and the videos'
-    judge features per eval type (all frames, both players)."""
+    judge features (and FID features, if asked for) per eval type (all frames, both players)."""
 
     frames: dict[tuple[str, str, int], np.ndarray]
     features: dict[str, list[np.ndarray]]
     seconds: float
+    fid_features: dict[str, list[np.ndarray]] = field(default_factory=dict)
 
     def source(self, segments: Sequence[Segment]) -> Callable[[Episode, str, int], np.ndarray]:
         by_key = {seg.episode.key: seg for seg in segments}
@@ -180,17 +188,20 @@ def _batches(segments: Sequence[Segment], worlds: int) -> list[list[Segment]]:
 
 
 def generate(model, segments: Sequence[Segment], seed: int, worlds: int,
-             features: FrameFeatures | None = None, verbose: bool = False) -> GeneratedVideos:
+             features: FrameFeatures | None = None, verbose: bool = False,
+             fid_features: Callable[[np.ndarray], np.ndarray] | None = None) -> GeneratedVideos:
     """Roll the model out over every segment (``worlds`` per call) with sampling seed ``seed``.
 
     Batch i uses ``model.init(..., rng=seed * 1_000_003 + i)``; a padded last batch repeats its last
-    segment. Keeps only the query frames and (with ``features``) the judge features of every frame.
+    segment. Keeps only the query frames and (with ``features`` / ``fid_features``) the judge / FID
+    features of every frame.
     """
     from training.samples import rollout
 
     t0 = time.perf_counter()
     kept: dict[tuple[str, str, int], np.ndarray] = {}
     feats: dict[str, list[np.ndarray]] = defaultdict(list)
+    fid_feats: dict[str, list[np.ndarray]] = defaultdict(list)
     batches = _batches(segments, worlds)
     for i, batch in enumerate(batches):
         if verbose:
@@ -206,9 +217,12 @@ def generate(model, segments: Sequence[Segment], seed: int, worlds: int,
                         if qbot == bot:
                             j = seg.generated_index(g)
                             kept[(seg.episode.key, bot, j)] = gen_BTPHW3[b, j, p].copy()
+            gen_NHW3 = gen_BTPHW3[b].reshape(-1, *gen_BTPHW3.shape[-3:])  # all T frames of both players
             if features is not None:
-                feats[seg.episode.episode_type].append(features(gen_BTPHW3[b].reshape(-1, *gen_BTPHW3.shape[-3:])))
-    return GeneratedVideos(kept, dict(feats), time.perf_counter() - t0)
+                feats[seg.episode.episode_type].append(features(gen_NHW3))
+            if fid_features is not None:
+                fid_feats[seg.episode.episode_type].append(fid_features(gen_NHW3))
+    return GeneratedVideos(kept, dict(feats), time.perf_counter() - t0, dict(fid_feats))
 
 
 def check_frame_size(model, segments: Sequence[Segment]) -> None:
@@ -247,9 +261,10 @@ def summarise_trials(trials: Sequence[dict]) -> dict:
             "tasks": {t: _mean_std([tr["tasks"][t] for tr in trials]) for t in tasks}}
 
 
-def features_by_type(features: FrameFeatures, segments: Sequence[Segment], copy_first: bool = False
+def features_by_type(features: Callable[[np.ndarray], np.ndarray], segments: Sequence[Segment], copy_first: bool = False
                      ) -> dict[str, list[np.ndarray]]:
-    """Judge features of the GT window (or of the first frame repeated T times) per eval type."""
+    """Features (judge or FID: ``features(frames_NHW3) -> (N, D)``) of the GT window (or of the first frame
+    repeated T times) per eval type."""
     out: dict[str, list[np.ndarray]] = defaultdict(list)
     for seg in segments:
         gt_TPHW3 = seg.ground_truth()
@@ -278,21 +293,31 @@ def frechet_by_task(real: dict[str, list[np.ndarray]], fake: dict[str, list[np.n
 # ---------------------------------------------------------------------------------------------
 
 
+def _distance_cell(row: dict, key: str, task: str) -> str:
+    d = row.get(key, {}).get("tasks_mean", {}).get(task)
+    return "–" if d is None or math.isnan(d) else f"{d:.2f}"
+
+
 def markdown_table(rows: dict[str, dict]) -> str:
-    """Rows = models, columns = the five tasks x (judge accuracy % mean ± std, Fréchet distance)."""
+    """Rows = models, columns = the five tasks x (judge accuracy % mean ± std, Fréchet distance, and FID
+    if any row has one)."""
     tasks = list(questions.TASKS)
-    head = "| model | " + " | ".join(f"{t} judge ↑ | {t} FD ↓" for t in tasks) + " |"
-    lines = [head, "|---|" + "---:|" * (2 * len(tasks))]
+    with_fid = any("fid" in row for row in rows.values())
+    per_task = 3 if with_fid else 2
+    head = "| model | " + " | ".join(f"{t} judge ↑ | {t} FD ↓" + (f" | {t} FID ↓" if with_fid else "")
+                                     for t in tasks) + " |"
+    lines = [head, "|---|" + "---:|" * (per_task * len(tasks))]
     for name, row in rows.items():
         if row.get("status") == NO_CHECKPOINT:
-            lines.append(f"| {name} | " + " | ".join([NO_CHECKPOINT, "–"] * len(tasks)) + " |")
+            lines.append(f"| {name} | " + " | ".join(([NO_CHECKPOINT] + ["–"] * (per_task - 1)) * len(tasks)) + " |")
             continue
         cells = []
         for t in tasks:
             acc = row["accuracy"]["tasks"].get(t)
-            fd = row.get("frechet", {}).get("tasks_mean", {}).get(t)
             cells.append("–" if acc is None else f"{100 * acc['mean']:.1f} ± {100 * acc['std']:.1f}")
-            cells.append("–" if fd is None or math.isnan(fd) else f"{fd:.2f}")
+            cells.append(_distance_cell(row, "frechet", t))
+            if with_fid:
+                cells.append(_distance_cell(row, "fid", t))
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
@@ -319,38 +344,59 @@ def per_type_table(rows: dict[str, dict]) -> str:
 # ---------------------------------------------------------------------------------------------
 
 
-def run_generated_row(model, judge, features, segments, seeds, worlds, real_feats) -> dict:
-    """Trials of one world model: accuracy per trial, Fréchet distance per trial, timings."""
-    trials, fds, timing = [], [], []
+def _frechet_means(fds: Sequence[dict]) -> dict:
+    """Mean over trials of ``frechet_by_task`` results: ``{"tasks_mean": ..., "per_type_mean": ...}``."""
+    return {"tasks_mean": {t: float(np.mean([f["tasks"][t] for f in fds])) for t in fds[0]["tasks"]},
+            "per_type_mean": {t: float(np.mean([f["per_type"][t] for f in fds])) for t in fds[0]["per_type"]}}
+
+
+def run_generated_row(model, judge, features, segments, seeds, worlds, real_feats,
+                      fid_features=None, real_fid=None) -> dict:
+    """Trials of one world model: accuracy per trial, Fréchet distance (and FID, with ``fid_features`` and
+    the GT's ``real_fid``) per trial, timings."""
+    trials, fds, fids, timing = [], [], [], []
     for seed in seeds:
-        videos = generate(model, segments, seed, worlds, features, verbose=True)
+        videos = generate(model, segments, seed, worlds, features, verbose=True, fid_features=fid_features)
         t0 = time.perf_counter()
         trial = score_trial(judge, segments, videos.source(segments))
         judge_s = time.perf_counter() - t0
         fd = frechet_by_task(real_feats, videos.features)
         trials.append({"seed": seed, **trial, "frechet": fd})
         fds.append(fd)
+        if fid_features is not None:
+            trials[-1]["fid"] = frechet_by_task(real_fid, videos.fid_features)
+            fids.append(trials[-1]["fid"])
         timing.append({"seed": seed, "generate_s": round(videos.seconds, 2), "judge_s": round(judge_s, 2)})
         print(f"  seed {seed}: generated in {videos.seconds:.1f} s; tasks "
               + ", ".join(f"{k} {100 * v:.1f}" for k, v in trial["tasks"].items()), file=sys.stderr)
-    frechet = {"tasks_mean": {t: float(np.mean([f["tasks"][t] for f in fds])) for t in fds[0]["tasks"]},
-               "per_type_mean": {t: float(np.mean([f["per_type"][t] for f in fds])) for t in fds[0]["per_type"]}}
-    return {"accuracy": summarise_trials(trials), "frechet": frechet, "trials": trials, "timing": timing}
+    row = {"accuracy": summarise_trials(trials), "frechet": _frechet_means(fds)}
+    if fids:
+        row["fid"] = _frechet_means(fids)
+    return {**row, "trials": trials, "timing": timing}
 
 
-def run_fixed_row(judge, segments, frames, real_feats, fake_feats) -> dict:
-    """A deterministic row (ground truth, copy-first-frame): one trial, std 0 by construction."""
+def _fixed_frechet(real: dict[str, list[np.ndarray]], fake: dict[str, list[np.ndarray]] | None, trial: dict) -> dict:
+    """Fréchet distances of a deterministic row; ``fake`` None = the GT frames themselves (distance 0)."""
+    if fake is None:
+        return {"tasks_mean": {t: 0.0 for t in trial["tasks"]}, "per_type_mean": {t: 0.0 for t in trial["per_type"]}}
+    fd = frechet_by_task(real, fake)
+    return {"tasks_mean": fd["tasks"], "per_type_mean": fd["per_type"]}
+
+
+def run_fixed_row(judge, segments, frames, real_feats, fake_feats, real_fid=None, fake_fid=None) -> dict:
+    """A deterministic row (ground truth, copy-first-frame): one trial, std 0 by construction. With the
+    GT's FID features ``real_fid`` the row also gets a FID (``fake_fid`` None, like ``fake_feats``: 0)."""
     trial = score_trial(judge, segments, frames)
-    fd = frechet_by_task(real_feats, fake_feats) if fake_feats is not None else None
-    frechet = ({"tasks_mean": fd["tasks"], "per_type_mean": fd["per_type"]} if fd is not None else
-               {"tasks_mean": {t: 0.0 for t in trial["tasks"]}, "per_type_mean": {t: 0.0 for t in trial["per_type"]}})
-    return {"accuracy": summarise_trials([trial]), "frechet": frechet, "trials": [trial],
-            "deterministic": "the judge is deterministic: one trial, std 0"}
+    row = {"accuracy": summarise_trials([trial]), "frechet": _fixed_frechet(real_feats, fake_feats, trial)}
+    if real_fid is not None:
+        row["fid"] = _fixed_frechet(real_fid, fake_fid, trial)
+    return {**row, "trials": [trial], "deterministic": "the judge is deterministic: one trial, std 0"}
 
 
 def run_benchmark(data_dir: str | Path, models: dict[str, object | None], seeds: Sequence[int] = (0, 1, 2),
                   worlds: int = 16, num_frames: int = EVAL_NUM_FRAMES, judge=None, features=None,
-                  eval_types: Sequence[str] | None = None) -> dict:
+                  eval_types: Sequence[str] | None = None,
+                  fid_features: Callable[[np.ndarray], np.ndarray] | None = None) -> dict:
     """Score every row on the eval sets under ``data_dir``.
 
     Args:
@@ -358,6 +404,8 @@ def run_benchmark(data_dir: str | Path, models: dict[str, object | None], seeds:
         seeds: sampling seeds of the generated rows (one trial each).
         worlds: episodes per model call (B).
         num_frames: generated frames per player (T = 1 + k * steps; 257 as the paper).
+        fid_features: ``frames_NHW3 -> (N, D)`` features for a FID of the same frames as the in-domain
+            Fréchet distance (an ``InceptionFeatures``), stored as each row's ``fid``; None: no FID.
     Returns:
         ``{"rows": {...}, "table": markdown, "episodes_per_type", "skipped", "timing_s", ...}``.
     """
@@ -379,6 +427,12 @@ def run_benchmark(data_dir: str | Path, models: dict[str, object | None], seeds:
     real_feats = features_by_type(features, segments)
     copy_feats = features_by_type(features, segments, copy_first=True)
     timing = {"ground_truth_features_s": round(time.perf_counter() - t0, 2)}
+    real_fid = copy_fid = None
+    if fid_features is not None:
+        t0 = time.perf_counter()
+        real_fid = features_by_type(fid_features, segments)
+        copy_fid = features_by_type(fid_features, segments, copy_first=True)
+        timing["ground_truth_fid_features_s"] = round(time.perf_counter() - t0, 2)
     rows: dict[str, dict] = {}
     for name, model in models.items():
         if model is None:
@@ -386,11 +440,12 @@ def run_benchmark(data_dir: str | Path, models: dict[str, object | None], seeds:
             continue
         check_frame_size(model, segments)
         print(f"{name}: {len(segments)} episodes x {len(seeds)} seeds", file=sys.stderr)
-        rows[name] = run_generated_row(model, judge, features, segments, seeds, worlds, real_feats)
+        rows[name] = run_generated_row(model, judge, features, segments, seeds, worlds, real_feats,
+                                       fid_features, real_fid)
     t0 = time.perf_counter()
-    rows["ground_truth"] = run_fixed_row(judge, segments, ground_truth_frames(), real_feats, None)
+    rows["ground_truth"] = run_fixed_row(judge, segments, ground_truth_frames(), real_feats, None, real_fid, None)
     rows["copy_first_frame"] = run_fixed_row(judge, segments, copy_first_frame_source(segments), real_feats,
-                                             copy_feats)
+                                             copy_feats, real_fid, copy_fid)
     timing["fixed_rows_s"] = round(time.perf_counter() - t0, 2)
     timing["total_s"] = round(time.perf_counter() - t_start, 2)
     return {"rows": rows, "table": markdown_table(rows), "table_per_type": per_type_table(rows),
@@ -409,28 +464,36 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--num-frames", type=int, default=EVAL_NUM_FRAMES, help="generated frames per player")
     p.add_argument("--types", nargs="+", default=None, choices=sorted(EVAL_KEYS), help="only these eval types")
     p.add_argument("--data-seed", type=int, default=None, help="the collect --seed of --data (recorded only)")
-    p.add_argument("--inception-weights", default=None, help="standard FID InceptionV3 weights (not supported yet)")
+    p.add_argument("--inception-weights", default=None,
+                   help="also report true FID per task: the path of the standard FID InceptionV3 weights "
+                        "(pytorch-fid's pt_inception-2015-12-05-6726825d.pth, supplied by you; never downloaded)")
     p.add_argument("--out", default=str(RESULTS))
     return p
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    if args.inception_weights is not None:
-        raise SystemExit("--inception-weights: FID with InceptionV3 is not supported yet; this benchmark reports "
-                         "an in-domain Fréchet distance on judge features instead (drop the flag)")
+    fid_features = None
+    if args.inception_weights is not None:  # before the world models: a bad weights file fails fast
+        from solaris_env.judges.inception import InceptionFeatures
+
+        fid_features = InceptionFeatures.load(args.inception_weights)
     from benchmarks.machine import machine_info, write_result
     from solaris_env.world_model.world_model import WorldModel
 
     load_before = os.getloadavg()
     models = {"default": WorldModel.load(args.model),
               "concat": WorldModel.load(args.concat_checkpoint) if args.concat_checkpoint else None}
-    result = run_benchmark(args.data, models, args.seeds, args.worlds, args.num_frames, eval_types=args.types)
+    result = run_benchmark(args.data, models, args.seeds, args.worlds, args.num_frames, eval_types=args.types,
+                           fid_features=fid_features)
+    fid = {"fid": f"FID in the FID InceptionV3's 2048-d pool3 features ({args.inception_weights}) of the same "
+                  "frames as frechet, upsampled bilinearly from the model's resolution to 299x299: comparable "
+                  "to other FIDs only at that resolution and resizing"} if fid_features is not None else {}
     result = {
         "benchmark": "eval_tasks", "judge": "shipped probes (solaris_env/assets/judges), deterministic",
         "frechet": "in-domain Fréchet distance on judge features (visible/position/structure probe penultimate "
                    "activations, 192-d) over all generated frames of both players vs the GT frames they show; "
-                   "NOT FID",
+                   "NOT FID", **fid,
         "std": "population std over trials (sampling seeds); 0 for the deterministic rows",
         "model": args.model, "concat_checkpoint": args.concat_checkpoint, "data": args.data,
         "data_seed": args.data_seed, **result, "machine": machine_info(load_before),

@@ -143,11 +143,41 @@ def test_frechet_by_task_is_zero_for_a_set_with_itself_and_positive_otherwise(se
     assert set(diff["per_type"]) == set(TYPES) and all(v > 0 for v in diff["tasks"].values())
 
 
-def test_frame_size_mismatch_and_inception_flag_fail_clearly(segments, tmp_path):
+def test_frame_size_mismatch_and_bad_inception_weights_fail_clearly(segments, tmp_path):
     class Wrong:
         frame_shape = (64, 64, 3)
 
     with pytest.raises(ValueError, match="--resolution 64"):
         et.check_frame_size(Wrong(), segments)
-    with pytest.raises(SystemExit, match="not supported yet"):
-        et.main(["--data", str(tmp_path), "--inception-weights", "pt_inception.pth", "--out", str(tmp_path / "x.json")])
+    out = str(tmp_path / "x.json")  # both fail before any world model is loaded
+    with pytest.raises(FileNotFoundError, match="pt_inception.pth"):
+        et.main(["--data", str(tmp_path), "--inception-weights", str(tmp_path / "pt_inception.pth"), "--out", out])
+    torch = pytest.importorskip("torch")
+    torch.save({"not_inception.weight": torch.zeros(1)}, tmp_path / "other.pth")
+    with pytest.raises(ValueError, match="unexpected key 'not_inception.weight'"):
+        et.main(["--data", str(tmp_path), "--inception-weights", str(tmp_path / "other.pth"), "--out", out])
+
+
+def test_fid_features_add_a_fid_next_to_the_in_domain_fd(data_dir, model, judge, features, monkeypatch):
+    """The --inception-weights wiring, with the judge features standing in for the FID Inception (~6 GFLOP a
+    frame): every row's and trial's FID equals its in-domain FD, and the table gets a FID column per task."""
+    import training.samples
+
+    monkeypatch.setattr(training.samples, "rollout", lambda model, obs, act, seed: 255 - obs)  # fast "videos"
+    res = et.run_benchmark(data_dir, {"default": model, "concat": None}, seeds=(0,), worlds=2, judge=judge,
+                           features=features, fid_features=features)
+    rows = res["rows"]
+    for name in ("default", "ground_truth", "copy_first_frame"):
+        assert rows[name]["fid"] == rows[name]["frechet"]
+    (trial,) = rows["default"]["trials"]
+    assert trial["fid"] == trial["frechet"] and set(trial["fid"]["per_type"]) == set(TYPES)
+    assert all(v > 0 for v in rows["default"]["fid"]["tasks_mean"].values())
+    assert rows["ground_truth"]["fid"]["tasks_mean"] == {"Movement": 0.0, "Grounding": 0.0}
+    assert "ground_truth_fid_features_s" in res["timing_s"]
+    json.dumps(res, allow_nan=False)
+    table = res["table"].splitlines()
+    num_tasks = len(et.questions.TASKS)
+    assert table[0].startswith("| model | Movement judge ↑ | Movement FD ↓ | Movement FID ↓ | Grounding judge")
+    assert table[1] == "|---|" + "---:|" * (3 * num_tasks)
+    assert table[3] == "| concat | " + " | ".join([et.NO_CHECKPOINT, "–", "–"] * num_tasks) + " |"
+    assert all(line.count("|") == 2 + 3 * num_tasks for line in table)
