@@ -45,6 +45,7 @@ import json
 import logging
 import os
 import secrets
+import threading
 from collections import Counter, OrderedDict
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -791,6 +792,11 @@ class LatentCache:
         self.fingerprint = str(fingerprint)
         self._tag = hashlib.sha1(self.fingerprint.encode()).hexdigest()[:12]
         self.stats: Counter[str] = Counter()
+        self._stats_lock = threading.Lock()  # LatentClips.build looks videos up from several threads
+
+    def _count(self, outcome: str) -> None:
+        with self._stats_lock:
+            self.stats[outcome] += 1
 
     def path_for(self, video: str | Path) -> Path:
         stem = Path(video).name.removesuffix(".mp4")
@@ -807,19 +813,19 @@ class LatentCache:
 
         video, path = Path(video), self.path_for(video)
         if not path.is_file():
-            self.stats["misses"] += 1
+            self._count("misses")
             return None
         try:
             with safe_open(str(path), framework="numpy") as f:
                 if f.metadata() != self._key(video, obs_size):
-                    self.stats["stale"] += 1
+                    self._count("stale")
                     return None
                 latents = f.get_tensor("latents")
         except Exception as err:  # noqa: BLE001 - an unreadable cache file is a miss, never a crash
             logger.warning("latent cache: unreadable %s (%s); re-encoding", path.name, err)
-            self.stats["stale"] += 1
+            self._count("stale")
             return None
-        self.stats["hits"] += 1
+        self._count("hits")
         return latents
 
     def get_or_encode(self, video: str | Path, encode_fn: Callable[[np.ndarray], Any],

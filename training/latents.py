@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import hashlib
 import logging
+import os
 from pathlib import Path
 
 import jax
@@ -42,6 +43,7 @@ logger = logging.getLogger(__name__)
 
 STREAM_CHUNK_LATENTS = 32  # latent frames encoded per streaming call (k * 32 video frames)
 IMAGE_BATCH = 64  # anchor frames encoded per call
+BUILD_WORKERS = 4  # videos encoded at once when the cache is built (at most the CPU count)
 
 
 def vae_fingerprint(cfg: WorldModelConfig, vae_state) -> str:
@@ -134,25 +136,39 @@ class LatentClips:
     def latents(self, video: Path) -> np.ndarray:
         lat = self._latents.get(video)
         if lat is None:
-            st = video.stat()
-            source = self._canonical.get((st.st_dev, st.st_ino), video)
-            lat = self.cache.get_or_encode(source, self.encoder, self.dataset.frames.size)
-            self._latents[video] = lat
+            lat = self._latents[video] = self._cached_or_encoded(video)
         return lat
 
-    def build(self, episode_ids=None) -> int:
-        """Encode every (valid) episode's videos now; returns the number of videos encoded or found."""
+    def _cached_or_encoded(self, video: Path) -> np.ndarray:
+        st = video.stat()
+        source = self._canonical.get((st.st_dev, st.st_ino), video)
+        return self.cache.get_or_encode(source, self.encoder, self.dataset.frames.size)
+
+    def build(self, episode_ids=None, workers: int | None = None) -> int:
+        """Encode every (valid) episode's videos now; returns the number of videos encoded or found.
+
+        ``workers`` videos are decoded and encoded at once (threads: the video decoder and XLA release the GIL,
+        and one batch-1 streaming encode keeps about one CPU core busy); default: the CPU count, at most
+        ``BUILD_WORKERS``. The cache files are the same whatever the number.
+        """
+        from concurrent.futures import ThreadPoolExecutor
+
         ids = self.dataset.valid_ids if episode_ids is None else episode_ids
-        count = 0
-        for i, episode_id in enumerate(ids):
+        videos = []
+        for episode_id in ids:
             segment = (D.SegmentMP(episode_id, 0, 0) if isinstance(self.dataset, D.DuetDataset)
                        else D.SegmentSP(episode_id, 0))
-            for video, _, _ in self._player_recordings(segment):
-                self.latents(video)
-                count += 1
-            if (i + 1) % 20 == 0:
-                logger.info("latent cache: %d/%d episodes (%s)", i + 1, len(ids), dict(self.cache.stats))
-        return count
+            videos += [video for video, _, _ in self._player_recordings(segment) if video not in self._latents]
+        workers = min(BUILD_WORKERS, os.cpu_count() or 1) if workers is None else workers
+        if workers < 1:
+            raise ValueError(f"workers must be >= 1, got {workers}")
+        per_episode = max(1, len(videos) // max(1, len(ids)))
+        with ThreadPoolExecutor(workers) as pool:  # map keeps the order; results arrive as they are ready
+            for i, (video, lat) in enumerate(zip(videos, pool.map(self._cached_or_encoded, videos))):
+                self._latents[video] = lat
+                if (i + 1) % (20 * per_episode) == 0:
+                    logger.info("latent cache: %d/%d videos (%s)", i + 1, len(videos), dict(self.cache.stats))
+        return len(self._latents)
 
     def load(self, segment, num_frames: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """-> (x0 (P, F, h, w, C) f32, first frames (P, H, W, 3) uint8, actions (T, P, 25) f32)."""

@@ -87,3 +87,18 @@ def test_vpt_export_shares_the_duet_latents(root, cfg, modules, clips):
     assert shared.cache.stats["misses"] == 0 and shared.cache.stats["hits"] == 2 * clips.dataset.num_episodes
     x0, _, act = shared.load(D.SegmentSP(1, 20), 9)
     assert x0.shape == (1, 3, 4, 4, cfg.latent_channels) and act.shape == (9, 1, 25)
+
+
+def test_build_with_threads_writes_the_same_cache_as_one_worker(root, cfg, modules, tmp_path):
+    dataset = D.DuetDataset(root, "train", obs_size=(32, 32))
+    one = latent_clips(dataset, cfg, modules[1], tmp_path / "one", canonical_dir=root / "duet")
+    many = latent_clips(dataset, cfg, modules[1], tmp_path / "many", canonical_dir=root / "duet")
+    videos = 2 * dataset.num_episodes
+    assert one.build(workers=1) == many.build(workers=3) == videos
+    assert many.cache.stats["misses"] == videos and many.build() == videos  # all in memory: nothing looked up again
+    assert many.cache.stats["misses"] + many.cache.stats["hits"] == videos
+    assert sorted(p.name for p in one.cache.dir.iterdir()) == sorted(p.name for p in many.cache.dir.iterdir())
+    for video, latents in one._latents.items():
+        np.testing.assert_array_equal(many._latents[video], latents)
+    with pytest.raises(ValueError, match="workers must be >= 1"):
+        latent_clips(dataset, cfg, modules[1], tmp_path / "bad", canonical_dir=root / "duet").build(workers=0)
