@@ -61,31 +61,29 @@ class PPOArgs:
             raise ValueError(f"partner must be 'noop' or 'random' (both run in the dream), got {self.partner!r}")
         if self.world not in ("flat", "normal", "mixed"):
             raise ValueError(f"world must be 'flat', 'normal' or 'mixed', got {self.world!r}")
-        self.policy_keys()  # fails early on an unknown key
         if self.camera not in ("task", "both", "yaw", "pitch"):
             raise ValueError(f"camera must be 'task', 'both', 'yaw' or 'pitch', got {self.camera!r}")
+        try:
+            self.codec()  # the codec checks keys, camera bins and range: fail before any env is built
+        except ValueError as err:
+            if not str(err).startswith("keys"):
+                raise
+            raise ValueError(f"keys must be 'task', 'all', 'none' or a comma list of distinct binary keys, got "
+                             f"{self.keys!r} ({err})") from None
         for name in ("total_timesteps", "checkpoint_every", "max_steps", "start_states", "n_steps", "batch_size",
                      "n_epochs", "torch_threads"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
 
-
     def policy_keys(self) -> tuple[str, ...] | None:
-        """The binary keys of the flat action (None: all of them)."""
-        from solaris_env.spaces import BINARY_KEYS
-
+        """The binary keys of the flat action (None: all of them), as given; ``codec()`` checks them."""
         if self.keys == "task":
             return TASK_KEYS[self.task]
         if self.keys == "all":
             return None
         if self.keys == "none":
             return ()
-        keys = tuple(k.strip() for k in self.keys.split(",") if k.strip())
-        unknown = [k for k in keys if k not in BINARY_KEYS]
-        if unknown or len(set(keys)) != len(keys):
-            raise ValueError(f"keys must be 'task', 'all', 'none' or a comma list of distinct keys from "
-                             f"{list(BINARY_KEYS)}, got {self.keys!r}")
-        return keys
+        return tuple(k.strip() for k in self.keys.split(",") if k.strip())
 
     def camera_axes(self) -> tuple[str, ...]:
         """The camera axes of the flat action."""

@@ -106,11 +106,11 @@ class Judge:
         out = []
         for i in range(0, N, CHUNK):
             chunk = x_NFHWC[i:i + CHUNK]
-            size = _padded_size(len(chunk))
-            pad = size - len(chunk)
+            n = len(chunk)
+            pad = _padded_size(n) - n
             if pad:
                 chunk = np.concatenate([chunk, np.zeros((pad, *chunk.shape[1:]), chunk.dtype)])
-            out.append(np.asarray(_forward_jit(graphdef, state, chunk))[:size - pad])
+            out.append(np.asarray(_forward_jit(graphdef, state, chunk))[:n])
         return np.concatenate(out) if out else np.zeros((0, questions.get(question).num_answers), np.float32)
 
     def answer(self, question: str, *frames) -> list[str]:
