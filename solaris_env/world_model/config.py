@@ -249,6 +249,14 @@ class SamplerConfig:
     num_train_timesteps: int = 1000
     bidirectional_steps: int = 10
     shift: float = 5.0  # sigma' = shift*sigma / (1 + (shift-1)*sigma) for the N-step schedule
+    # The timestep at which a generated frame is committed to the KV cache: 0 (model-spec, the reference) writes
+    # the clean x0; t > 0 writes x_t = (1 - t/T) x0 + (t/T) eps, the "context noise" of the Self Forcing
+    # lineage, which a Diffusion-Forcing-trained model has seen and which hides small errors of its own frames.
+    context_noise: int = 0
+
+    def __post_init__(self):
+        _require(0 <= self.context_noise < self.num_train_timesteps,
+                 f"context_noise must be in [0, num_train_timesteps={self.num_train_timesteps}), got {self.context_noise}")
 
 
 # ---------------------------------------------------------------------------------------------

@@ -67,6 +67,7 @@ expected value (shapes, dtypes, player count, non-finite actions).
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 from typing import Any, NamedTuple
@@ -78,7 +79,7 @@ from flax import nnx, struct
 
 from solaris_env.world_model import kv_cache, sampler
 from solaris_env.world_model.conditioning import first_frame_cond_next, first_frame_cond_start
-from solaris_env.world_model.config import VAEConfig, WorldModelConfig, preset
+from solaris_env.world_model.config import SamplerConfig, VAEConfig, WorldModelConfig, preset
 from solaris_env.world_model.dit import (ContextKV, WorldDiT, block_graphdef, from_stream, stack_blocks,
                                          timesteps_to_stream, to_stream, unstack_blocks)
 from solaris_env.world_model.image_encoder import ImageEncoder
@@ -280,10 +281,15 @@ class Programs:
         i = ws.frame_index_B
         _, frame_key = jax.random.split(ws.key_B)
         z, k_renoise = self._noise(frame_key, ws.latent_BP1hwC.shape[0])
-        x = jnp.concatenate([ws.latent_BP1hwC, z], axis=1)  # (P, 2, h, w, C): [clean i - 1 ; noisy i]
+        prev, t_prev = ws.latent_BP1hwC, self.cfg.sampler.context_noise
+        if t_prev:  # commit x_t of frame i - 1 instead of its x0 (SamplerConfig.context_noise)
+            sigma = t_prev / self.cfg.sampler.num_train_timesteps
+            eps = jax.random.normal(jax.random.fold_in(frame_key, 1), prev.shape, jnp.float32)
+            prev = (1.0 - sigma) * prev + sigma * eps
+        x = jnp.concatenate([prev, z], axis=1)  # (P, 2, h, w, C): [committed i - 1 ; noisy i]
         cond = jnp.concatenate([self._cond_at(ws, i - 1), self._cond_at(ws, i)], axis=1)
         actions = jnp.concatenate([ws.actions_BPWA, actions_PkA.astype(jnp.float32)], axis=1)  # windows i-1, i
-        t = jnp.asarray([0.0, self.timesteps[0]], jnp.float32)
+        t = jnp.asarray([float(t_prev), self.timesteps[0]], jnp.float32)
         v, cache = dit[0].commit_denoise_step_cached(*self._dit_args(x, t, (cond, ws.context_kv, actions, ws.dit_cache),
                                                                      i - 1), layers=dit[1])
         return z, k_renoise, from_stream(self.cfg, v)[0], cache
@@ -386,10 +392,14 @@ class WorldModel:
     """
 
     def __init__(self, config: WorldModelConfig, dit: WorldDiT, vae: CausalVideoVAE, image_encoder: ImageEncoder):
-        self._cfg = config
         graphdefs, params = zip(*(nnx.split(m) for m in (dit, vae, image_encoder)))
-        self.programs = Programs(config, tuple(graphdefs))
-        self._step_params = self.programs.step_params(tuple(params))  # the only copy kept
+        programs = Programs(config, tuple(graphdefs))
+        self._setup(config, programs, programs.step_params(tuple(params)))  # the only copy kept
+
+    def _setup(self, config: WorldModelConfig, programs: Programs, step_params: StepParams) -> None:
+        self._cfg = config
+        self.programs = programs
+        self._step_params = step_params
         # jit once; the state is donated (callers must use the returned state, not the old one)
         # The jitted calls take the parameters as a flat list of arrays: flattening the NNX state tree (some
         # 550 Variables for tiny) in Python on every call cost ~4 ms per step; a list flattens in C++.
@@ -419,6 +429,13 @@ class WorldModel:
         from solaris_env.world_model import checkpoint
         config, modules = checkpoint.load_modules(path, config)
         return cls(config, *modules)
+
+    def with_sampler(self, sampler: SamplerConfig) -> "WorldModel":
+        """The same weights (shared, not copied) under another sampler config: timesteps, context noise."""
+        new = object.__new__(WorldModel)
+        config = dataclasses.replace(self._cfg, sampler=sampler)
+        new._setup(config, Programs(config, self.programs.graphdefs), self._step_params)
+        return new
 
     def save(self, path) -> None:
         """Write our checkpoint format (safetensors + JSON config, atomically)."""

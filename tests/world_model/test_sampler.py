@@ -152,3 +152,9 @@ def test_sampler_takes_a_denoiser_and_never_imports_the_network():
                 for alias in node.names}
     modules = {node.module for node in ast.walk(ast.parse(source)) if isinstance(node, ast.ImportFrom)}
     assert not imported & {"dit", "WorldDiT"} and not any(m and m.endswith(".dit") for m in modules)
+
+
+@pytest.mark.parametrize("bad", [-1, 1000, 2000])
+def test_context_noise_out_of_range_is_refused(bad):
+    with pytest.raises(ValueError, match="context_noise must be in"):
+        SamplerConfig(context_noise=bad)

@@ -263,6 +263,10 @@ def test_bad_inputs_raise_before_compute(model):
 
 @pytest.fixture(scope="module")
 def rollout(model):
+    return stream_rollout(model)
+
+
+def stream_rollout(model):
     """Stream ``cond_frames + 1`` steps (past the steady conditioning) and keep what the reference needs."""
     cfg = model.config
     steps = model.cond_frames + 1
@@ -282,19 +286,22 @@ def rollout(model):
 
 
 def _frame_noise(keys_B, shape, num_steps):
-    """Per the documented key schedule: (next keys, initial noise (B, ...), re-noise draws [s] (B, ...))."""
-    nxt, z, eps = [], [], []
+    """Per the documented key schedule: (next keys, frame keys, initial noise (B, ...), re-noise draws [s] (B, ...))."""
+    nxt, frame_keys, z, eps = [], [], [], []
     for key in keys_B:
         key, frame_key = jax.random.split(key)
         k_noise, k_renoise = jax.random.split(frame_key)
         nxt.append(key)
+        frame_keys.append(frame_key)
         z.append(jax.random.normal(k_noise, shape))
         eps.append(jnp.stack([jax.random.normal(k, shape) for k in jax.random.split(k_renoise, num_steps)]))
-    return nxt, jnp.stack(z), jnp.stack(eps, axis=1)
+    return nxt, frame_keys, jnp.stack(z), jnp.stack(eps, axis=1)
 
 
-@pytest.fixture(scope="module")
-def reference(model, rollout):
+def offline_rollout(model, rollout, context_noise: int = 0):
+    """The model-spec rollout written out pass by pass (separate denoise and commit passes, whole-video
+    conditioning); the commit of frame i - 1 happens before frame i, at t = ``context_noise`` on
+    (1 - s) x0 + s eps with eps drawn from ``fold_in(frame i's key, 1)`` (clean x0 when 0)."""
     cfg, ff = rollout["cfg"], rollout["ff"]
     num_frames = rollout["latents"].shape[2]
     p, (h, w, _) = model.num_players, model.frame_shape
@@ -314,21 +321,30 @@ def reference(model, rollout):
     keys = list(jax.random.split(rollout["rng"], B))
     cache = kv_cache.init_cache(cfg, B)
     latents = []
+    args = lambda i, x, t: (params, x, jnp.full((B, p, 1), t, jnp.float32), cond[:, :, i:i + 1], context,
+                            windows[:, :, i, :, kb:], windows[:, :, i, :, :kb], cache, i)
     for i in range(num_frames):
-        keys, z, eps = _frame_noise(keys, (p, 1, cfg.latent_height, cfg.latent_width, cfg.latent_channels), 4)
-        args = lambda x, t: (params, x, jnp.full((B, p, 1), t, jnp.float32), cond[:, :, i:i + 1], context,
-                             windows[:, :, i, :, kb:], windows[:, :, i, :, :kb], cache, i)
+        keys, frame_keys, z, eps = _frame_noise(keys, (p, 1, cfg.latent_height, cfg.latent_width,
+                                                       cfg.latent_channels), 4)
+        if i:  # the commit pass writes frame i - 1 (clean, or at the context-noise timestep)
+            s = context_noise / 1000.0
+            noise = jnp.stack([jax.random.normal(jax.random.fold_in(k, 1), x0.shape[1:]) for k in frame_keys])
+            _, cache = decode(*args(i - 1, (1 - s) * x0 + s * noise if context_noise else x0, float(context_noise)))
         for s, t in enumerate(timesteps[:-1]):
-            v, _ = decode(*args(z, t))
+            v, _ = decode(*args(i, z, t))
             x0 = z - (t / 1000.0) * v
             sigma = timesteps[s + 1] / 1000.0
             z = (1 - sigma) * x0 + sigma * eps[s]
-        _, cache = decode(*args(x0, 0.0))  # commit pass writes the clean frame
         latents.append(x0)
     latents = jnp.concatenate(latents, axis=2)  # (B, P, F, h, w, C)
     video = jax.jit(vae.decode)(latents.reshape(B * p, *latents.shape[2:]))
     video = np.asarray(jnp.clip((video + 1) * 127.5, 0, 255).astype(jnp.uint8))
     return dict(latents=np.asarray(latents), frames=video.reshape(B, p, *video.shape[1:]), cond=np.asarray(cond))
+
+
+@pytest.fixture(scope="module")
+def reference(model, rollout):
+    return offline_rollout(model, rollout)
 
 
 def test_streaming_step_equals_offline_rollout(rollout, reference):
@@ -338,6 +354,17 @@ def test_streaming_step_equals_offline_rollout(rollout, reference):
     assert rollout["frames"].shape == reference["frames"].shape  # 1 + k * steps frames per player
     diff = np.abs(rollout["frames"].astype(int) - reference["frames"].astype(int))
     assert diff.max() <= 1 and (diff > 0).mean() < 0.01  # uint8 truncation of float noise only
+
+
+def test_context_noise_commits_the_noised_frame(model, rollout):
+    noisy = model.with_sampler(dataclasses.replace(model.config.sampler, context_noise=200))
+    assert noisy.config.sampler.context_noise == 200 and model.config.sampler.context_noise == 0
+    assert noisy.step_params is model.step_params  # the same weights, not a copy
+    got = stream_rollout(noisy)
+    want = offline_rollout(noisy, got, context_noise=200)
+    np.testing.assert_allclose(got["latents"], want["latents"], atol=1e-5, rtol=0)
+    np.testing.assert_array_equal(got["latents"][:, :, 0], rollout["latents"][:, :, 0])  # nothing committed yet
+    assert np.abs(got["latents"][:, :, 1:] - rollout["latents"][:, :, 1:]).max() > 1e-3  # the cache changed
 
 
 def test_conditioning_table_matches_full_video_encoding_and_is_steady(model, rollout, reference):
