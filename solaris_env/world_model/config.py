@@ -252,6 +252,7 @@ class SamplerConfig:
     # The timestep at which a generated frame is committed to the KV cache: 0 (model-spec, the reference) writes
     # the clean x0; t > 0 writes x_t = (1 - t/T) x0 + (t/T) eps, the "context noise" of the Self Forcing
     # lineage, which a Diffusion-Forcing-trained model has seen and which hides small errors of its own frames.
+    # A rollout (inference) setting: Self Forcing training (training/self_forcing.py) always commits clean x0.
     context_noise: int = 0
 
     def __post_init__(self):

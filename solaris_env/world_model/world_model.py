@@ -432,7 +432,7 @@ class WorldModel:
 
     def with_sampler(self, sampler: SamplerConfig) -> "WorldModel":
         """The same weights (shared, not copied) under another sampler config: timesteps, context noise."""
-        new = object.__new__(WorldModel)
+        new = object.__new__(type(self))
         config = dataclasses.replace(self._cfg, sampler=sampler)
         new._setup(config, Programs(config, self.programs.graphdefs), self._step_params)
         return new
