@@ -12,8 +12,8 @@ from solaris_env.world_model.config import preset
 from solaris_env.world_model.world_model import WorldModel
 from training.data import make_batch
 from training.objectives import NUM_TRAIN_TIMESTEPS, sample_timesteps
-from training.step import (NonFiniteError, TrainState, check_finite, make_loss_fn, make_optimizer, make_train_step,
-                           prepare_batch)
+from training.step import (NonFiniteError, TrainState, check_finite, ema_decay_at, ema_update, make_loss_fn,
+                           make_optimizer, make_train_step, prepare_batch, scheduled_lr)
 
 B, T = 2, 5
 LR = 3e-3
@@ -157,3 +157,63 @@ def test_nan_raises_naming_the_step(modules, batch, steps):
     state, metrics = train_step(state, poisoned)
     with pytest.raises(NonFiniteError, match="step 2"):
         check_finite(metrics, step)
+
+
+# ---------------------------------------------------------------------------------------------
+# Learning-rate cool-down and the parameter EMA (the tiny preset's short runs)
+# ---------------------------------------------------------------------------------------------
+
+
+def test_scheduled_lr_is_constant_then_linear_to_zero():
+    assert [scheduled_lr(2.0, s) for s in (0, 10, 10**6)] == [2.0, 2.0, 2.0]  # the spec's constant LR
+    lrs = [scheduled_lr(2.0, s, total_steps=10, decay_steps=4) for s in range(10)]
+    assert lrs == pytest.approx([2.0] * 6 + [2.0, 1.5, 1.0, 0.5])
+    traced = jax.jit(lambda s: scheduled_lr(2.0, s, 10, 4))
+    assert [float(traced(jnp.int32(s))) for s in range(12)] == pytest.approx(lrs + [0.0, 0.0])
+    for bad in (-1, 11):
+        with pytest.raises(ValueError, match="decay_steps"):
+            scheduled_lr(1.0, 0, total_steps=10, decay_steps=bad)
+    with pytest.raises(ValueError, match="total_steps=None"):
+        make_optimizer(1.0, decay_steps=3)
+
+
+def test_optimizer_applies_the_cool_down():
+    """Adam's step for a constant gradient is the learning rate itself: the updates show the schedule."""
+    tx = make_optimizer(1.0, total_steps=4, decay_steps=4)
+    params = {"w": jnp.zeros(3)}
+    state = tx.init(params)
+    sizes = []
+    for _ in range(5):
+        updates, state = tx.update({"w": jnp.ones(3)}, state, params)
+        sizes.append(float(-updates["w"][0]))
+    assert sizes == pytest.approx([1.0, 0.75, 0.5, 0.25, 0.0], abs=1e-6)
+
+
+def test_ema_decay_warms_up_and_update_is_the_average():
+    assert [float(ema_decay_at(0.999, s)) for s in (0, 10, 10**5)] == pytest.approx([0.1, 11 / 20, 0.999])
+    ema, params = {"a": jnp.array([1.0, 3.0])}, {"a": jnp.array([3.0, -1.0])}
+    np.testing.assert_allclose(ema_update(ema, params, 0.75)["a"], [1.5, 2.0])
+    with pytest.raises(ValueError, match="ema_decay"):
+        make_train_step(None, "forward_causal", "diffusion_forcing", make_optimizer(LR), ema_decay=1.0)
+
+
+def test_train_step_keeps_the_parameter_ema(modules, batch):
+    """A state created with ``ema=True`` starts its average at the parameters and moves it by
+    ``ema_decay_at`` after every update; ``final_params`` is the average; the trained parameters are
+    those of a state without one."""
+    tx = make_optimizer(LR)
+    graphdef, state = TrainState.create(modules[0], tx, rng=0, ema=True)
+    _, plain = TrainState.create(modules[0], tx, rng=0)
+    assert plain.ema is None and plain.final_params is plain.params
+    step = make_train_step(graphdef, "forward_causal", "diffusion_forcing", tx, ema_decay=0.9)
+    expected = jax.tree.map(np.asarray, state.params)
+    for n in range(3):
+        state, _ = step(state, batch)
+        plain, _ = step(plain, batch)
+        decay = float(ema_decay_at(0.9, n))
+        expected = jax.tree.map(lambda e, p: e + (1 - decay) * (np.asarray(p) - e), expected, state.params)
+    for got, want, trained, ref in zip(jax.tree.leaves(state.final_params), jax.tree.leaves(expected),
+                                       jax.tree.leaves(state.params), jax.tree.leaves(plain.params)):
+        np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-6)
+        np.testing.assert_array_equal(trained, ref)
+    assert any(not np.allclose(a, b) for a, b in zip(jax.tree.leaves(state.ema), jax.tree.leaves(state.params)))

@@ -43,10 +43,27 @@ BATCH_KEYS = ("x0", "cond", "context", "mouse", "keyboard")
 # ---------------------------------------------------------------------------------------------
 
 
-def make_optimizer(lr: float) -> optax.GradientTransformation:
-    """AdamW of every stage (model-spec §6.2): b1 0.9, b2 0.95, eps 1e-8, no weight decay, constant LR,
-    no clipping."""
-    return optax.adamw(optax.constant_schedule(lr), b1=0.9, b2=0.95, eps=1e-8, weight_decay=0.0)
+def scheduled_lr(lr: float, step, total_steps: int | None = None, decay_steps: int = 0):
+    """Learning rate of update ``step`` (0-based): ``lr`` constant (model-spec §6.2), or, with ``decay_steps``
+    > 0, constant until the last ``decay_steps`` of ``total_steps`` and then linear towards 0
+    (warmup-stable-decay without warmup): update ``total_steps - 1`` uses ``lr / decay_steps``. Works on
+    Python ints (the logged value) and traced arrays (optax's update count)."""
+    if decay_steps == 0:
+        return lr
+    if total_steps is None or not 0 < decay_steps <= total_steps:
+        raise ValueError(f"decay_steps must be in [0, total_steps={total_steps}], got {decay_steps}")
+    frac = (total_steps - step) / decay_steps
+    return lr * (jnp.clip(frac, 0.0, 1.0) if isinstance(frac, jax.Array) else min(max(frac, 0.0), 1.0))
+
+
+def make_optimizer(lr: float, total_steps: int | None = None, decay_steps: int = 0) -> optax.GradientTransformation:
+    """AdamW of every stage (model-spec §6.2): b1 0.9, b2 0.95, eps 1e-8, no weight decay, no clipping; the
+    spec's constant LR unless ``decay_steps`` > 0 (``scheduled_lr``: a linear cool-down over the last
+    ``decay_steps`` of ``total_steps``, for the short CPU runs of the tiny preset)."""
+    schedule = (optax.constant_schedule(lr) if decay_steps == 0
+                else lambda count: scheduled_lr(lr, count, total_steps, decay_steps))
+    scheduled_lr(lr, 0, total_steps, decay_steps)  # validates the arguments now, not at the first update
+    return optax.adamw(schedule, b1=0.9, b2=0.95, eps=1e-8, weight_decay=0.0)
 
 
 @struct.dataclass
@@ -58,6 +75,7 @@ class TrainState:
     opt_state: the optax state of ``params``.
     step: () int32, the number of updates applied so far.
     rng: (2,) uint32 raw base key; step n uses ``fold_in(rng, n)``.
+    ema: an exponential moving average of ``params`` (``ema_update``), or None when the stage keeps none.
     """
 
     params: Any
@@ -65,17 +83,36 @@ class TrainState:
     opt_state: Any
     step: jax.Array
     rng: jax.Array
+    ema: Any = None
 
     @classmethod
-    def create(cls, model: nnx.Module, tx: optax.GradientTransformation, rng: int | jax.Array
+    def create(cls, model: nnx.Module, tx: optax.GradientTransformation, rng: int | jax.Array, ema: bool = False
                ) -> tuple[nnx.GraphDef, TrainState]:
         """Split ``model`` once -> (graphdef, state). The state owns copies of the parameters, so donating
-        it to the train step never invalidates ``model``'s own arrays."""
+        it to the train step never invalidates ``model``'s own arrays. ``ema``: keep a moving average of the
+        parameters, starting from them."""
         graphdef, params, rest = nnx.split(model, nnx.Param, ...)
         params, rest = jax.tree.map(jnp.copy, (params, rest))
         key = jax.random.PRNGKey(rng) if isinstance(rng, (int, np.integer)) else jnp.asarray(rng, jnp.uint32)
         return graphdef, cls(params=params, rest=rest, opt_state=tx.init(params), step=jnp.zeros((), jnp.int32),
-                             rng=key)
+                             rng=key, ema=jax.tree.map(jnp.copy, params) if ema else None)
+
+    @property
+    def final_params(self) -> Any:
+        """The parameters a finished stage saves: the moving average when kept, else the trained ones."""
+        return self.params if self.ema is None else self.ema
+
+
+def ema_decay_at(decay: float, step):
+    """The EMA decay applied after update ``step`` (0-based): ``min(decay, (1 + step) / (10 + step))``, so the
+    average forgets its starting point (the previous stage's weights) within the first ~100 updates instead of
+    weighting it by ``decay ** steps``."""
+    return jnp.minimum(decay, (1.0 + step) / (10.0 + step))
+
+
+def ema_update(ema: Any, params: Any, decay) -> Any:
+    """``ema + (1 - decay) * (params - ema)`` leaf by leaf, in each leaf's dtype."""
+    return jax.tree.map(lambda e, p: (e + (1.0 - decay) * (p - e)).astype(e.dtype), ema, params)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -133,14 +170,17 @@ def make_loss_fn(graphdef: nnx.GraphDef, entry_point_name: str) -> Callable:
 
 
 def make_train_step(graphdef: nnx.GraphDef, entry_point_name: str, noise_type: str,
-                    tx: optax.GradientTransformation) -> Callable:
+                    tx: optax.GradientTransformation, ema_decay: float = 0.999) -> Callable:
     """-> jitted ``train_step(state, batch) -> (state, metrics)``; ``state`` is donated.
 
     ``batch`` holds ``BATCH_KEYS`` (``prepare_batch``). metrics: loss, grad_norm, param_norm (after the
-    update), update_norm, all f32 scalars on device; pass them to ``check_finite`` on the host.
+    update), update_norm, all f32 scalars on device; pass them to ``check_finite`` on the host. A state
+    created with ``ema=True`` also moves its average towards the new parameters (``ema_decay_at``).
     """
     if noise_type not in NOISE_TYPES:
         raise ValueError(f"noise_type must be one of {NOISE_TYPES}, got {noise_type!r}")
+    if not 0.0 <= ema_decay < 1.0:
+        raise ValueError(f"ema_decay must be in [0, 1), got {ema_decay}")
     loss_fn = make_loss_fn(graphdef, entry_point_name)
 
     def train_step(state: TrainState, batch: dict) -> tuple[TrainState, dict]:
@@ -153,7 +193,8 @@ def make_train_step(graphdef: nnx.GraphDef, entry_point_name: str, noise_type: s
         params = optax.apply_updates(state.params, updates)
         metrics = {"loss": loss, "grad_norm": optax.tree.norm(grads), "param_norm": optax.tree.norm(params),
                    "update_norm": optax.tree.norm(updates)}
-        return state.replace(params=params, opt_state=opt_state, step=state.step + 1), metrics
+        ema = None if state.ema is None else ema_update(state.ema, params, ema_decay_at(ema_decay, state.step))
+        return state.replace(params=params, opt_state=opt_state, step=state.step + 1, ema=ema), metrics
 
     return jax.jit(train_step, donate_argnums=(0,))
 

@@ -12,7 +12,10 @@
 Every stage starts from the previous stage's ``model/`` and resumes from its own latest checkpoint:
 a run killed at any point (even ``kill -9``) and restarted continues with the same next loss, because
 the train state, the optimiser state, the step RNG and the data sampler are all restored. Stage
-hyper-parameters come from ``training/configs/<preset>.json`` (one block per stage).
+hyper-parameters come from ``training/configs/<preset>.json`` (one block per stage). The flow-matching stages
+also take two optional keys, both off by default (the spec's recipe): ``lr_decay_steps`` (a linear LR
+cool-down over the last N updates, ``step.scheduled_lr``) and ``ema_decay`` (the stage saves an exponential
+moving average of the DiT's parameters, kept in its checkpoints, instead of the last update).
 """
 
 from __future__ import annotations
@@ -45,6 +48,7 @@ from training.step import (
     check_finite,
     make_optimizer,
     make_train_step,
+    scheduled_lr,
 )
 
 logger = logging.getLogger(__name__)
@@ -106,6 +110,7 @@ class LoopSpec:
     tokens_per_step: int  # for tokens/s (latent tokens of a batch seen by the DiT; pixels for the VAE)
     lr: float
     fsdp: bool = False  # shard parameters and optimiser state over the "data" mesh axis (else replicated)
+    lr_decay_steps: int = 0  # the optimiser's linear cool-down (``step.scheduled_lr``); only logged here
 
 
 def run_loop(spec: LoopSpec, out: Path, state: Any, step_fn: Callable, draw_batch: Callable[[], Any],
@@ -138,7 +143,8 @@ def run_loop(spec: LoopSpec, out: Path, state: Any, step_fn: Callable, draw_batc
             now = time.perf_counter()
             steps_per_s = (done - n_last) / max(now - t_last, 1e-9)
             t_last, n_last = now, done
-            metrics_log.log(done, stage=spec.stage, lr=spec.lr, steps_per_s=steps_per_s,
+            lr = scheduled_lr(spec.lr, step, spec.steps, spec.lr_decay_steps)
+            metrics_log.log(done, stage=spec.stage, lr=lr, steps_per_s=steps_per_s,
                             tokens_per_s=steps_per_s * spec.tokens_per_step, **host)
             losses = {k: f"{v:.4f}" for k, v in host.items() if k.endswith("loss")}
             bar.set_postfix(**losses, steps_s=f"{steps_per_s:.2f}")
@@ -382,15 +388,16 @@ def train_flow(stage: str, out: str | Path, data_dir: str | Path, stage_cfg: dic
     base_cfg = checkpoint.read_config(model_dir(out, fs.init_from))
     players = 1 if fs.single_player else make_preset(base_cfg.name).num_players
     cfg, (dit, vae, encoder) = load_stage_model(out, fs.init_from, num_players=players)
-    adamw = make_optimizer(sc["lr"])
+    decay_steps, ema_decay = sc.get("lr_decay_steps", 0), sc.get("ema_decay", 0.0)
+    adamw = make_optimizer(sc["lr"], steps, decay_steps)
     if fs.single_player:
         params = nnx.state(dit, nnx.Param)
         dit.player_embed.embedding.set_value(jnp.zeros_like(dit.player_embed.embedding[...]))
         tx = optax.multi_transform({"train": adamw, "frozen": optax.set_to_zero()}, _frozen_player_embedding(params))
     else:
         tx = adamw
-    graphdef, state = TrainState.create(dit, tx, rng=seed)
-    train_step = make_train_step(graphdef, fs.entry_point, fs.noise_type, tx)
+    graphdef, state = TrainState.create(dit, tx, rng=seed, ema=ema_decay > 0)
+    train_step = make_train_step(graphdef, fs.entry_point, fs.noise_type, tx, ema_decay)
     clips, sampler, prepare = clip_stream(out, data_dir, cfg, vae, encoder, sc, seed, fs.single_player)
     batch_size = local_batch_size(sc["batch_size"])
 
@@ -400,14 +407,14 @@ def train_flow(stage: str, out: str | Path, data_dir: str | Path, stage_cfg: dic
     def on_sample(st, step):
         from training.samples import write_stage_sample
         write_stage_sample(stage_dir(out, stage) / "samples" / f"step_{step:06d}", cfg,
-                           nnx.merge(graphdef, st.params, st.rest), vae, encoder, data_dir, fs.entry_point, seed)
+                           nnx.merge(graphdef, st.final_params, st.rest), vae, encoder, data_dir, fs.entry_point, seed)
 
     frames = cfg.vae.latent_frames(sc["num_frames"])
     spec = LoopSpec(stage, steps, sc["log_every"], sc["ckpt_every"], sc["sample_every"],
                     tokens_per_step=batch_size * cfg.num_players * frames * cfg.tokens_per_frame, lr=sc["lr"],
-                    fsdp=fsdp)
+                    fsdp=fsdp, lr_decay_steps=decay_steps)
     state = run_loop(spec, out, state, train_step, draw, sampler, resume, on_sample)
-    trained = nnx.merge(graphdef, state.params, state.rest)
+    trained = nnx.merge(graphdef, state.final_params, state.rest)
     WorldModel(cfg, trained, vae, encoder).save(model_dir(out, stage))
     return model_dir(out, stage)
 

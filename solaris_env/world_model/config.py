@@ -254,10 +254,15 @@ class SamplerConfig:
     # lineage, which a Diffusion-Forcing-trained model has seen and which hides small errors of its own frames.
     # A rollout (inference) setting: Self Forcing training (training/self_forcing.py) always commits clean x0.
     context_noise: int = 0
+    # The share of fresh noise when an AR step re-noises its x0 (``sampler.sample_frame``): 1 = the spec (fresh
+    # noise, the DMD-style rule a distilled generator is trained for); 0 = the predicted noise (the Euler step of
+    # the flow ODE, the usual sampler of a model trained by flow matching alone). A rollout setting.
+    renoise_eta: float = 1.0
 
     def __post_init__(self):
         _require(0 <= self.context_noise < self.num_train_timesteps,
                  f"context_noise must be in [0, num_train_timesteps={self.num_train_timesteps}), got {self.context_noise}")
+        _require(0.0 <= self.renoise_eta <= 1.0, f"renoise_eta must be in [0, 1], got {self.renoise_eta}")
 
 
 # ---------------------------------------------------------------------------------------------

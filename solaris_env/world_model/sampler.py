@@ -84,7 +84,8 @@ def _check_timesteps(timesteps) -> np.ndarray:
 
 
 def sample_frame(denoise_fn: DenoiseFn, z: jax.Array, key: jax.Array, timesteps: Sequence[float],
-                 num_train_timesteps: int = 1000, unroll: bool = False, first_v: jax.Array | None = None) -> jax.Array:
+                 num_train_timesteps: int = 1000, unroll: bool = False, first_v: jax.Array | None = None,
+                 eta: float = 1.0) -> jax.Array:
     """Run the x0 + fresh-noise rule from ``z`` (pure noise at timesteps[0]) down to t = 0.
 
     Args:
@@ -96,18 +97,28 @@ def sample_frame(denoise_fn: DenoiseFn, z: jax.Array, key: jax.Array, timesteps:
             analysis, which counts a loop body once, count every step).
         first_v: the velocity of the first step, ``denoise_fn(z, timesteps[0])``, when the caller has
             computed it already (in a pass fused with other work); the same result.
+        eta: the share of fresh noise in the re-noising: 1 (default) is the rule above; 0 re-noises with the
+            predicted noise ``eps_hat = z_t + (1 - sigma) v`` instead, i.e. the Euler step of the flow ODE
+            (deterministic given z); in between, ``eta * N(0, I) + sqrt(1 - eta^2) * eps_hat``.
     Returns:
         x0 (f32, shape of z): the prediction of the last step. The denoiser runs len(timesteps) - 1
         times (len(timesteps) - 2 with ``first_v``) inside one ``lax.scan`` (traced once).
     """
     t = _check_timesteps(timesteps)
+    if not 0.0 <= eta <= 1.0:
+        raise ValueError(f"eta must be in [0, 1], got {eta}")
     scale = 1.0 / float(num_train_timesteps)
     keys = jax.random.split(key, t.shape[0] - 1)
 
     def update(z_t, v, t_now, t_next, k):
-        x0 = z_t.astype(jnp.float32) - (t_now * scale) * v.astype(jnp.float32)
+        z_t32, v32 = z_t.astype(jnp.float32), v.astype(jnp.float32)
+        x0 = z_t32 - (t_now * scale) * v32
         sigma_next = t_next * scale
-        z_next = (1.0 - sigma_next) * x0 + sigma_next * jax.random.normal(k, x0.shape, jnp.float32)
+        eps = jax.random.normal(k, x0.shape, jnp.float32)
+        if eta != 1.0:  # a Python float: the spec's rule (eta = 1) is traced exactly as before
+            eps_hat = z_t32 + (1.0 - t_now * scale) * v32
+            eps = eta * eps + float(np.sqrt(1.0 - eta * eta)) * eps_hat
+        z_next = (1.0 - sigma_next) * x0 + sigma_next * eps
         return z_next.astype(z_t.dtype)
 
     def body(z_t, step):

@@ -271,7 +271,7 @@ class Programs:
         cfg = self.cfg
         denoise = lambda x, t: self._velocity(dit, x, t, parts, start)
         return sampler.sample_frame(denoise, z, k_renoise, self.timesteps, cfg.sampler.num_train_timesteps,
-                                    unroll=self.unroll, first_v=first_v)
+                                    unroll=self.unroll, first_v=first_v, eta=cfg.sampler.renoise_eta)
 
     def _first_pass(self, dit, ws: WorldState, actions_PkA):
         """The fused pass of a step: commit latent frame i - 1 (``ws.latent_BP1hwC`` at t = 0) and the

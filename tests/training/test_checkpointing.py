@@ -89,6 +89,21 @@ def test_round_trip_bit_exact(tmp_path):
         assert [x.sharding for x in jax.tree.leaves(placed)] == [x.sharding for x in jax.tree.leaves(state)]
 
 
+def test_round_trip_with_the_parameter_ema(tmp_path):
+    """A stage that keeps an EMA of its parameters checkpoints it with the rest (resume restores it)."""
+    import jax
+
+    from training.checkpointing import Checkpointer
+
+    state = _mlp_state()
+    state = state.replace(ema=jax.tree.map(lambda p: 0.5 * p + 0.25, state.params))
+    with Checkpointer(tmp_path) as ckpt:
+        ckpt.save(3, state, {"stage": "mp-causal"})
+        restored, _ = ckpt.restore(3, jax.eval_shape(lambda: state))
+    _assert_bit_exact(restored, state)
+    assert restored.final_params is restored.ema
+
+
 def test_round_trip_several_train_states(tmp_path):
     """Self Forcing keeps a generator and a critic (each with its own optimiser state) in one checkpoint."""
     import jax
