@@ -11,7 +11,8 @@ On held-out Duet episodes (``DATA/duet/test``), from each segment's first frame 
 (c) collapse: a ``long_steps`` rollout (default 200) with PSNR and mean/std of the pixels over time
     (a collapsing model drifts to a flat or saturated image);
 next to both, the ceiling: the VAE's reconstruction of the ground truth (its encode then decode, i.e. a DiT
-that predicted every latent exactly); plus a contact sheet (generated over ground truth, both players, 64 steps) and ``eval.json``.
+that predicted every latent exactly), and the teacher-forced rollout (each step predicted from the true past
+latents: its gap to (a) is the drift, its gap to the ceiling the per-step error); plus a contact sheet (generated over ground truth, both players, 64 steps) and ``eval.json``.
 """
 
 from __future__ import annotations
@@ -68,6 +69,7 @@ def evaluate(model_dir: str | Path, data_dir: str | Path, out_dir: str | Path, n
     obs, act = seg["obs"], seg["act"]
     gen = rollout(model, obs, act, seed)
     gen_zero = rollout(model, obs, np.zeros_like(act), seed)
+    gen_teacher = rollout(model, obs, act, seed, teacher_forced=True)
     copy = np.repeat(obs[:, :1], obs.shape[1], axis=1)
     ceiling = vae_reconstruction(model, obs)
     score = lambda x: psnr_per_frame(x, obs)[:, 1:]  # (B, T-1, P): frames after the given one
@@ -83,6 +85,8 @@ def evaluate(model_dir: str | Path, data_dir: str | Path, out_dir: str | Path, n
         "psnr_copy_last_frame_by_step_db": by_step(copy),
         "psnr_vae_reconstruction_db": float(score(ceiling).mean()),
         "psnr_vae_reconstruction_by_step_db": by_step(ceiling),
+        "psnr_teacher_forced_db": float(score(gen_teacher).mean()),
+        "psnr_teacher_forced_by_step_db": by_step(gen_teacher),
     }
     r = result["rollout"]
     r["beats_copy_last_frame"] = r["psnr_model_db"] > r["psnr_copy_last_frame_db"]

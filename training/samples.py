@@ -18,13 +18,18 @@ from solaris_env.world_model.config import WorldModelConfig
 from solaris_env.world_model.world_model import WorldModel
 
 
-def rollout(model: WorldModel, obs_BTPHW3: np.ndarray, act_BTP25: np.ndarray, seed: int = 0) -> np.ndarray:
+def rollout(model: WorldModel, obs_BTPHW3: np.ndarray, act_BTP25: np.ndarray, seed: int = 0,
+            teacher_forced: bool = False) -> np.ndarray:
     """Autoregressive rollout from ``obs[:, 0]`` driven by the segment's actions.
 
     Args:
         model: the streaming world model.
         obs_BTPHW3: uint8 ground truth, T = 1 + k * n (only frame 0 is given to the model).
         act_BTP25: the segment's model action vectors.
+        teacher_forced: after each step, hand the model the ground truth's latent frame (``ground_truth_latents``)
+            as the frame the next step commits to its KV cache, instead of its own: every step is then a
+            one-step prediction from the true past (the VAE decoder still streams the generated latents).
+            A diagnostic: free rollout vs teacher-forced separates the drift from the per-step error.
     Returns:
         generated uint8 (B, T, P, H, W, 3); frame 0 is the model's decode of latent frame 0.
     """
@@ -32,13 +37,32 @@ def rollout(model: WorldModel, obs_BTPHW3: np.ndarray, act_BTP25: np.ndarray, se
     t = obs_BTPHW3.shape[1]
     if (t - 1) % k:
         raise ValueError(f"segment length T={t} must be 1 + k*n for k={k}")
+    truth = ground_truth_latents(model, obs_BTPHW3) if teacher_forced else None
     state = model.init(jnp.asarray(obs_BTPHW3[:, 0]), seed, first_actions=jnp.asarray(act_BTP25[:, 0]))
     out = [np.asarray(state.frame0_BPHW3)[:, None]]
     for i in range(1, 1 + (t - 1) // k):
         chunk = act_BTP25[:, k * (i - 1) + 1: k * i + 1]  # (B, k, P, 25)
         frames, state = model.step(state, jnp.asarray(np.swapaxes(chunk, 1, 2)))
+        if truth is not None:
+            state = state.replace(latent_BP1hwC=jnp.asarray(truth[:, :, i:i + 1], state.latent_BP1hwC.dtype))
         out.append(np.swapaxes(np.asarray(frames), 1, 2))  # (B, k, P, H, W, 3)
     return np.concatenate(out, axis=1)
+
+
+def ground_truth_latents(model: WorldModel, obs_BTPHW3: np.ndarray, batch: int = 8) -> np.ndarray:
+    """The latents the DiT is trained to predict for these frames (``prepare_batch``'s x0: the VAE's normalised
+    posterior mean of each player's clip): f32 (B, P, F, h, w, C), F = 1 + (T - 1) / k."""
+    from flax import nnx
+
+    from solaris_env.world_model.world_model import frames_to_model
+
+    graphdef, state = nnx.split(model.modules()[1])
+    encode = jax.jit(lambda s, v: nnx.merge(graphdef, s).encode(frames_to_model(v)))
+    b, t, p = obs_BTPHW3.shape[:3]
+    videos = np.swapaxes(obs_BTPHW3, 1, 2).reshape((b * p, t) + obs_BTPHW3.shape[3:])  # (B*P, T, H, W, 3)
+    lat = np.concatenate([np.asarray(encode(state, jnp.asarray(videos[i:i + batch])))
+                          for i in range(0, len(videos), batch)])
+    return lat.reshape((b, p) + lat.shape[1:]).astype(np.float32)
 
 
 def vae_reconstruction(model: WorldModel, obs_BTPHW3: np.ndarray, batch: int = 8) -> np.ndarray:

@@ -148,7 +148,8 @@ def test_evaluate_scores_rollouts_against_copy_last_and_the_vae_ceiling(run, dat
                       sheet_steps=2)
     r = result["rollout"]
     assert r["segments"] == 2 and r["frames"] == 1 + 4 * 2
-    for key in ("psnr_model_by_step_db", "psnr_copy_last_frame_by_step_db", "psnr_vae_reconstruction_by_step_db"):
+    for key in ("psnr_model_by_step_db", "psnr_copy_last_frame_by_step_db", "psnr_vae_reconstruction_by_step_db",
+                "psnr_teacher_forced_by_step_db"):
         assert len(r[key]) == 2, key
     # the by-step means average to the overall means (every step has the same number of frames)
     assert sum(r["psnr_copy_last_frame_by_step_db"]) / 2 == pytest.approx(r["psnr_copy_last_frame_db"])
