@@ -18,7 +18,8 @@ import logging
 import sys
 from pathlib import Path
 
-STAGE_COMMANDS = ("vae", "vae-decoder", "sp", "mp-bidirectional", "mp-causal", "self-forcing")
+STAGE_COMMANDS = ("vae", "vae-decoder", "sp", "mp-bidirectional", "mp-causal", "self-forcing")  # ``all``, in order
+EXTRA_STAGE_COMMANDS = ("mp-rollout",)  # training.train.EXTRA_STAGES: run by name only
 
 
 def _stage_cfg(args) -> dict:
@@ -112,7 +113,7 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--fsdp", action="store_true",
                        help="shard parameters and optimiser state over the devices (default: replicated)")
 
-    for stage in STAGE_COMMANDS:
+    for stage in STAGE_COMMANDS + EXTRA_STAGE_COMMANDS:
         p = sub.add_parser(stage, help=f"train the {stage} stage")
         common(p)
         p.add_argument("--steps", type=int, default=None, help="number of updates (default: the stage config's)")
