@@ -8,6 +8,7 @@ reproduces the ground truth's indices one for one.
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
 import jax
@@ -16,6 +17,8 @@ import numpy as np
 
 from solaris_env.world_model.config import WorldModelConfig
 from solaris_env.world_model.world_model import WorldModel
+
+logger = logging.getLogger(__name__)
 
 
 def rollout(model: WorldModel, obs_BTPHW3: np.ndarray, act_BTP25: np.ndarray, seed: int = 0,
@@ -160,19 +163,24 @@ def bidirectional_sample(cfg: WorldModelConfig, dit, vae, encoder, obs_BTPHW3: n
 def write_stage_sample(stem: Path, cfg: WorldModelConfig, dit, vae, encoder, data_dir: Path, entry_point: str,
                        seed: int = 0, num_frames: int | None = None) -> dict:
     """Generate one held-out segment (duet/test, or vpt/test for one player) with the stage's model and
-    write ``<stem>.mp4`` (generated over ground truth) and ``<stem>.json`` (PSNR); returns the summary."""
+    write ``<stem>.mp4`` (generated over ground truth) and ``<stem>.json`` (PSNR); returns the summary, or
+    None (a warning, nothing written) when no held-out episode holds ``num_frames`` frames."""
     from training import data as D
 
     stem = Path(stem)
     k = cfg.frames_per_step
     num_frames = num_frames or 1 + k * 8
     size = (cfg.frame_height, cfg.frame_width)
-    if cfg.num_players == 1:
-        dataset = D.VPTDataset(data_dir, "test", obs_size=size)
-        sampler = D.SinglePlayerSegmentSampler(dataset, num_frames, seed=seed + 20_000)
-    else:
-        dataset = D.DuetDataset(data_dir, "test", obs_size=size)
-        sampler = D.MultiplayerSegmentSampler(dataset, num_frames, seed=seed + 20_000)
+    try:
+        if cfg.num_players == 1:
+            dataset = D.VPTDataset(data_dir, "test", obs_size=size)
+            sampler = D.SinglePlayerSegmentSampler(dataset, num_frames, seed=seed + 20_000)
+        else:
+            dataset = D.DuetDataset(data_dir, "test", obs_size=size)
+            sampler = D.MultiplayerSegmentSampler(dataset, num_frames, seed=seed + 20_000)
+    except (ValueError, FileNotFoundError) as err:  # no held-out episode long enough: a sample is optional,
+        logger.warning("sample %s skipped: %s", stem, err)  # never a reason to lose the stage's model
+        return None
     raw = D.next_batch(dataset, sampler, 1)
     if entry_point == "forward_bidirectional":
         gen = bidirectional_sample(cfg, dit, vae, encoder, raw["obs"], raw["act"], seed)

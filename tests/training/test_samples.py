@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from solaris_env.world_model.world_model import WorldModel
-from training.samples import ground_truth_latents, rollout
+from training.samples import ground_truth_latents, rollout, write_stage_sample
 from training.step import prepare_batch
 
 K, STEPS = 4, 3
@@ -65,3 +65,16 @@ def test_teacher_forced_steps_see_the_true_past_and_only_the_past(model, segment
     np.testing.assert_array_equal(forced[0][:1 + 2 * K], forced[1][:1 + 2 * K])
     assert not np.array_equal(forced[0][1 + 2 * K:], forced[1][1 + 2 * K:])
     assert not np.array_equal(forced[0][1 + K:], free[0][1 + K:])
+
+
+def test_stage_sample_without_held_out_episodes_is_skipped(model, tmp_path, caplog):
+    """A dataset without (long enough) held-out episodes skips the sample with a warning: the stage that
+    asked for it still saves its model."""
+    (tmp_path / "data" / "duet" / "test").mkdir(parents=True)
+    (tmp_path / "data" / "duet" / "train").mkdir(parents=True)
+    dit, vae, encoder = model.modules()
+    with caplog.at_level("WARNING"):
+        out = write_stage_sample(tmp_path / "s" / "step_1", model.config, dit, vae, encoder, tmp_path / "data",
+                                 "forward_causal")
+    assert out is None and not (tmp_path / "s").exists()
+    assert "skipped" in caplog.text
