@@ -29,7 +29,7 @@ from flax import nnx
 
 from training.objectives import noisy_latents, sample_timesteps
 from training.self_forcing import rollout
-from training.step import TrainState, ema_decay_at, ema_update
+from training.step import TrainState, apply_gradients
 
 
 def rollout_regression_loss(graphdef: nnx.GraphDef, params, rest, batch: dict, key: jax.Array) -> jax.Array:
@@ -60,11 +60,6 @@ def make_rollout_regression_step(graphdef: nnx.GraphDef, tx: optax.GradientTrans
         key = jax.random.fold_in(state.rng, state.step)
         loss, grads = jax.value_and_grad(lambda p: rollout_regression_loss(graphdef, p, state.rest, batch, key))(
             state.params)
-        updates, opt_state = tx.update(grads, state.opt_state, state.params)
-        params = optax.apply_updates(state.params, updates)
-        ema = None if state.ema is None else ema_update(state.ema, params, ema_decay_at(ema_decay, state.step))
-        metrics = {"loss": loss, "grad_norm": optax.tree.norm(grads), "param_norm": optax.tree.norm(params),
-                   "update_norm": optax.tree.norm(updates)}
-        return state.replace(params=params, opt_state=opt_state, step=state.step + 1, ema=ema), metrics
+        return apply_gradients(state, loss, grads, tx, ema_decay)
 
     return jax.jit(step, donate_argnums=(0,))

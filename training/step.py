@@ -189,14 +189,21 @@ def make_train_step(graphdef: nnx.GraphDef, entry_point_name: str, noise_type: s
         t_BPF = sample_timesteps(k_t, x0.shape[:3], noise_type)
         noise = jax.random.normal(k_noise, x0.shape, jnp.float32)
         loss, grads = jax.value_and_grad(loss_fn)(state.params, state.rest, batch, t_BPF, noise)
-        updates, opt_state = tx.update(grads, state.opt_state, state.params)
-        params = optax.apply_updates(state.params, updates)
-        metrics = {"loss": loss, "grad_norm": optax.tree.norm(grads), "param_norm": optax.tree.norm(params),
-                   "update_norm": optax.tree.norm(updates)}
-        ema = None if state.ema is None else ema_update(state.ema, params, ema_decay_at(ema_decay, state.step))
-        return state.replace(params=params, opt_state=opt_state, step=state.step + 1, ema=ema), metrics
+        return apply_gradients(state, loss, grads, tx, ema_decay)
 
     return jax.jit(train_step, donate_argnums=(0,))
+
+
+def apply_gradients(state: TrainState, loss: jax.Array, grads: Any, tx: optax.GradientTransformation,
+                    ema_decay: float) -> tuple[TrainState, dict]:
+    """One optimiser update (and the EMA when the state keeps one) -> (next state, metrics): loss, grad_norm,
+    param_norm (after the update), update_norm. Shared by every DiT objective's train step."""
+    updates, opt_state = tx.update(grads, state.opt_state, state.params)
+    params = optax.apply_updates(state.params, updates)
+    metrics = {"loss": loss, "grad_norm": optax.tree.norm(grads), "param_norm": optax.tree.norm(params),
+               "update_norm": optax.tree.norm(updates)}
+    ema = None if state.ema is None else ema_update(state.ema, params, ema_decay_at(ema_decay, state.step))
+    return state.replace(params=params, opt_state=opt_state, step=state.step + 1, ema=ema), metrics
 
 
 class NonFiniteError(RuntimeError):
