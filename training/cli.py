@@ -8,7 +8,9 @@
 
 Each stage reads the previous stage's ``OUT/<stage>/model`` and resumes from its own latest checkpoint
 (``--no-resume`` starts over). Per-stage defaults live in ``training/configs/<preset>.json``;
-``--steps`` overrides the stage's step count. Heavy imports (jax) happen only inside the commands.
+``--steps`` overrides the stage's step count. ``all`` keeps within the config's wall-clock budget
+(``all.time_budget_min``; ``--time-budget-min``) by ending stage 3 early when it must (``training.budget``).
+Heavy imports (jax) happen only inside the commands.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ from pathlib import Path
 
 STAGE_COMMANDS = ("vae", "vae-decoder", "sp", "mp-bidirectional", "mp-causal", "self-forcing")  # ``all``, in order
 EXTRA_STAGE_COMMANDS = ("mp-rollout",)  # training.train.EXTRA_STAGES: run by name only
+ELASTIC_STAGES = ("sp", "mp-bidirectional", "mp-causal")  # may end early to keep `all` within its time budget
 
 
 def _stage_cfg(args) -> dict:
@@ -42,11 +45,13 @@ def collect_if_missing(data: Path, preset_name: str, collect_cfg: dict) -> None:
         raise SystemExit(f"solaris-engine {' '.join(argv)} failed with exit code {rc}")
 
 
-def run_stage(stage: str, args, stage_cfg: dict) -> Path:
+def run_stage(stage: str, args, stage_cfg: dict, deadline: float | None = None) -> Path:
     from training import train
 
     seed = stage_cfg.get("seed", 0) if args.seed is None else args.seed
     kw = {"seed": seed, "steps": args.steps, "resume": not args.no_resume, "fsdp": args.fsdp}
+    if deadline is not None:  # an elastic stage (ELASTIC_STAGES)
+        kw["deadline"] = deadline
     if stage == "vae":
         return train.train_vae(args.out, args.data, stage_cfg["preset"], stage_cfg["vae"], **kw)
     if stage == "vae-decoder":
@@ -65,24 +70,58 @@ def cmd_stage(args) -> int:
     return 0
 
 
+def budget_settings(args, stage_cfg: dict) -> tuple[float | None, str, float]:
+    """(budget in seconds or None, elastic stage, reserve in seconds) from ``--time-budget-min`` and the
+    config's optional ``all`` block (``time_budget_min``, ``elastic_stage``, ``reserve_min``); a budget of
+    0 or none means every stage runs its configured steps (``training.budget``)."""
+    block = stage_cfg.get("all", {})
+    minutes = block.get("time_budget_min") if args.time_budget_min is None else args.time_budget_min
+    elastic = block.get("elastic_stage", "mp-causal")
+    reserve = float(block.get("reserve_min", 0.0))
+    if elastic not in ELASTIC_STAGES:
+        raise ValueError(f"all.elastic_stage must be one of {ELASTIC_STAGES}, got {elastic!r}")
+    if minutes is not None and not float(minutes) >= 0:
+        raise ValueError(f"time budget must be >= 0 minutes (0: none), got {minutes}")
+    if not reserve >= 0:
+        raise ValueError(f"all.reserve_min must be >= 0, got {reserve}")
+    return (float(minutes) * 60 if minutes else None), elastic, reserve * 60
+
+
 def cmd_all(args) -> int:
     import time
 
-    from training.train import model_dir
+    from training.budget import RunClock, elastic_deadline
+    from training.checkpointing import Checkpointer
+    from training.train import model_dir, stage_dir
 
     stage_cfg = _stage_cfg(args)
-    t0 = time.perf_counter()
-    collect_if_missing(Path(args.data), args.preset, stage_cfg["collect"])
-    timings = {"collect_s": time.perf_counter() - t0}
-    for stage in STAGE_COMMANDS:
-        if (model_dir(args.out, stage) / "config.json").is_file():  # finished earlier (resume = continue)
-            print(f"{stage}: finished earlier, skipped")
-            continue
+    budget_s, elastic, reserve_s = budget_settings(args, stage_cfg)
+    clock = RunClock(args.out).start()
+    try:
         t = time.perf_counter()
-        run_stage(stage, args, stage_cfg)
-        timings[f"{stage}_s"] = time.perf_counter() - t
-        print(f"{stage}: done in {timings[f'{stage}_s'] / 60:.1f} min")
-    print(f"all stages done in {(time.perf_counter() - t0) / 60:.1f} min: {timings}")
+        collect_if_missing(Path(args.data), args.preset, stage_cfg["collect"])
+        clock.record("collect_s", clock.record_["stages"].get("collect_s", 0.0) + time.perf_counter() - t)
+        for stage in STAGE_COMMANDS:
+            if (model_dir(args.out, stage) / "config.json").is_file():  # finished earlier (resume = continue)
+                print(f"{stage}: finished earlier, skipped")
+                continue
+            deadline = None
+            if budget_s is not None and stage == elastic:
+                deadline = elastic_deadline(time.time(), budget_s, clock.spent(), reserve_s)
+                print(f"{stage}: time budget {budget_s / 60:.0f} min, {clock.spent() / 60:.1f} spent, "
+                      f"{reserve_s / 60:.0f} kept for the later stages -> at most {(deadline - time.time()) / 60:.1f} "
+                      f"min for this stage")
+            t = time.perf_counter()
+            run_stage(stage, args, stage_cfg, deadline)
+            clock.record(f"{stage}_s", time.perf_counter() - t)
+            if deadline is not None:
+                ckpt = Checkpointer(stage_dir(args.out, stage) / "checkpoints")
+                clock.record(f"{stage}_steps", ckpt.latest_step())
+                ckpt.close()
+            print(f"{stage}: done in {clock.record_['stages'][f'{stage}_s'] / 60:.1f} min")
+    finally:
+        clock.stop()
+    print(f"all stages done; {clock.spent() / 60:.1f} min of wall clock in {args.out}: {clock.record_['stages']}")
     return 0
 
 
@@ -121,6 +160,9 @@ def build_parser() -> argparse.ArgumentParser:
     a = sub.add_parser("all", help="collect data, then the VAE and stages 1-4 in order (finished stages, "
                                    "those with a model/, are skipped; an unfinished one resumes)")
     common(a)
+    a.add_argument("--time-budget-min", type=float, default=None,
+                   help="wall-clock budget of the whole run (default: the config's all.time_budget_min; 0 = none): "
+                        "the elastic stage (stage 3) stops early to keep within it")
     a.set_defaults(func=cmd_all, steps=None)
     w = sub.add_parser("with-decoder", help="a model with the VAE decoder of a vae-decoder stage (same encoder)")
     w.add_argument("model", help="a model/ directory (e.g. self-forcing/model)")

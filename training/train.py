@@ -117,6 +117,7 @@ class LoopSpec:
     lr: float
     fsdp: bool = False  # shard parameters and optimiser state over the "data" mesh axis (else replicated)
     lr_decay_steps: int = 0  # the optimiser's linear cool-down (``step.scheduled_lr``); only logged here
+    deadline: float | None = None  # epoch seconds: stop after the step that ends past it (``training.budget``)
 
 
 def run_loop(spec: LoopSpec, out: Path, state: Any, step_fn: Callable, draw_batch: Callable[[], Any],
@@ -124,7 +125,9 @@ def run_loop(spec: LoopSpec, out: Path, state: Any, step_fn: Callable, draw_batc
     """Train ``state`` to ``spec.steps`` updates with checkpoints, metrics and samples; resumable.
 
     ``step_fn(state, batch) -> (state, metrics)`` donates ``state``; ``draw_batch()`` draws from ``sampler``
-    (its ``state_dict`` is checkpointed with the train state). Returns the final state.
+    (its ``state_dict`` is checkpointed with the train state). With ``spec.deadline``, the first step that ends
+    past it is treated as the last one (logged, checkpointed, sampled) and the loop stops there; at least one
+    step runs. Returns the final state.
     """
     from training.distributed import make_mesh, shard_batch, shard_train_state
 
@@ -144,7 +147,11 @@ def run_loop(spec: LoopSpec, out: Path, state: Any, step_fn: Callable, draw_batc
     for step in range(start, spec.steps):
         state, metrics = step_fn(state, shard_batch(draw_batch(), mesh))
         done = step + 1
-        if done % spec.log_every == 0 or done == spec.steps:
+        last = done == spec.steps
+        if not last and spec.deadline is not None and time.time() >= spec.deadline:
+            logger.warning("%s: time budget reached, stopping at step %d of %d", spec.stage, done, spec.steps)
+            last = True
+        if done % spec.log_every == 0 or last:
             host = check_finite(metrics, step)
             now = time.perf_counter()
             steps_per_s = (done - n_last) / max(now - t_last, 1e-9)
@@ -155,10 +162,12 @@ def run_loop(spec: LoopSpec, out: Path, state: Any, step_fn: Callable, draw_batc
             losses = {k: f"{v:.4f}" for k, v in host.items() if k.endswith("loss")}
             bar.set_postfix(**losses, steps_s=f"{steps_per_s:.2f}")
         bar.update(1)
-        if done % spec.ckpt_every == 0 or done == spec.steps:
+        if done % spec.ckpt_every == 0 or last:
             ckpt.save(done, state, {"sampler": sampler.state_dict(), "stage": spec.stage})
-        if on_sample is not None and (done % spec.sample_every == 0 or done == spec.steps):
+        if on_sample is not None and (done % spec.sample_every == 0 or last):
             on_sample(state, done)
+        if last:
+            break
     bar.close()
     metrics_log.close()
     ckpt.close()
@@ -383,8 +392,10 @@ def clip_stream(out: Path, data_dir: Path, cfg: WorldModelConfig, vae, encoder, 
 
 
 def train_flow(stage: str, out: str | Path, data_dir: str | Path, stage_cfg: dict, seed: int = 0,
-               steps: int | None = None, resume: bool = True, fsdp: bool = False) -> Path:
-    """Stages 1-3: flow matching of the DiT with the stage's entry point and noise type."""
+               steps: int | None = None, resume: bool = True, fsdp: bool = False,
+               deadline: float | None = None) -> Path:
+    """Stages 1-3: flow matching of the DiT with the stage's entry point and noise type; ``deadline``
+    (epoch seconds, ``training.budget``) may end the stage before ``steps``."""
     if stage not in FLOW_STAGES:
         raise ValueError(f"stage must be one of {sorted(FLOW_STAGES)}, got {stage!r}")
     fs = FLOW_STAGES[stage]
@@ -422,7 +433,7 @@ def train_flow(stage: str, out: str | Path, data_dir: str | Path, stage_cfg: dic
     frames = cfg.vae.latent_frames(sc["num_frames"])
     spec = LoopSpec(stage, steps, sc["log_every"], sc["ckpt_every"], sc["sample_every"],
                     tokens_per_step=batch_size * cfg.num_players * frames * cfg.tokens_per_frame, lr=sc["lr"],
-                    fsdp=fsdp, lr_decay_steps=decay_steps)
+                    fsdp=fsdp, lr_decay_steps=decay_steps, deadline=deadline)
     state = run_loop(spec, out, state, train_step, draw, sampler, resume, on_sample)
     trained = nnx.merge(graphdef, state.final_params, state.rest)
     WorldModel(cfg, trained, vae, encoder).save(model_dir(out, stage))

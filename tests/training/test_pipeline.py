@@ -169,3 +169,29 @@ def test_evaluate_scores_rollouts_against_copy_last_and_the_vae_ceiling(run, dat
     assert len(result["long_rollout"]["psnr_db"]) == 1
     assert json.loads((tmp_path / "eval.json").read_text())["rollout"] == r
     assert (tmp_path / "contact_sheet.png").is_file() and (tmp_path / "rollout_0.mp4").is_file()
+
+
+def test_all_keeps_within_its_time_budget(run, data, tmp_path, monkeypatch):
+    """``all`` with a budget already spent: the finished stages are skipped, stage 3 (the elastic stage) stops
+    after its first step with a checkpoint and a model, Self Forcing still runs, and the clock is on disk."""
+    import shutil
+
+    out = tmp_path / "run"
+    for stage in ("vae", "vae-decoder", "sp", "mp-bidirectional", "latents"):
+        shutil.copytree(run / stage, out / stage)
+    config = json.loads((REPO / "training" / "configs" / "test.json").read_text())
+    config["all"] = {"time_budget_min": 1e-4, "elastic_stage": "mp-causal", "reserve_min": 0}
+    config["mp-causal"].update(sample_every=10**6)
+    config["self-forcing"].update(steps=1, sample_every=10**6)
+    config_path = tmp_path / "config.json"
+    config_path.write_text(json.dumps(config))
+    monkeypatch.setattr(cli, "collect_if_missing", lambda *a: None)  # the data is there; collection is not tested here
+    assert cli.main(["all", "--preset", "test", "--config", str(config_path), "--data", str(data),
+                     "--out", str(out)]) == 0
+    assert [m["step"] for m in read_metrics(out / "mp-causal" / "metrics.jsonl")] == [1]  # of 3 configured
+    assert (model_dir(out, "mp-causal") / "config.json").is_file()
+    assert (model_dir(out, "self-forcing") / "config.json").is_file()
+    clock = json.loads((out / "all_clock.json").read_text())
+    assert clock["stages"]["mp-causal_steps"] == 1
+    assert clock["spent_s"] >= clock["stages"]["mp-causal_s"] + clock["stages"]["self-forcing_s"] > 0
+    assert "vae_s" not in clock["stages"]  # skipped stages cost nothing

@@ -1,0 +1,68 @@
+"""The wall-clock budget of ``solaris-train all`` (``training.budget``, ``training.cli.budget_settings``)."""
+
+import argparse
+import json
+import time
+
+import pytest
+
+from training.budget import CLOCK_FILE, RunClock, elastic_deadline
+from training.cli import budget_settings
+
+
+def test_elastic_deadline_is_the_budget_left_after_the_reserve():
+    assert elastic_deadline(1000.0, budget_s=600.0, spent_s=100.0, reserve_s=50.0) == 1450.0
+    assert elastic_deadline(1000.0, budget_s=60.0, spent_s=100.0, reserve_s=0.0) == 960.0  # already past: <= now
+
+
+@pytest.mark.parametrize("field", ["budget_s", "spent_s", "reserve_s"])
+def test_elastic_deadline_rejects_negative_or_nan(field):
+    kw = {"budget_s": 10.0, "spent_s": 1.0, "reserve_s": 1.0}
+    for bad in (-1.0, float("nan")):
+        with pytest.raises(ValueError, match=field):
+            elastic_deadline(0.0, **{**kw, field: bad})
+
+
+def test_run_clock_accumulates_across_invocations(tmp_path):
+    first = RunClock(tmp_path).start()
+    time.sleep(0.05)
+    first.record("collect_s", 0.05)
+    first.stop()
+    spent = json.loads((tmp_path / CLOCK_FILE).read_text())["spent_s"]
+    assert spent >= 0.05
+    second = RunClock(tmp_path)  # a resumed `all`: counts from where the first stopped
+    assert second.spent() >= spent
+    assert second.record_["stages"] == {"collect_s": 0.05}
+    time.sleep(0.05)
+    second.save()
+    assert json.loads((tmp_path / CLOCK_FILE).read_text())["spent_s"] >= spent + 0.05
+    assert not list(tmp_path.glob("*.tmp"))  # atomic writes leave no partial file
+
+
+def test_run_clock_saves_in_the_background(tmp_path):
+    clock = RunClock(tmp_path, save_every_s=0.02).start()
+    time.sleep(0.2)
+    on_disk = json.loads((tmp_path / CLOCK_FILE).read_text())["spent_s"]  # written by the thread, not by stop()
+    clock.stop()
+    assert on_disk > 0
+
+
+def _args(minutes):
+    return argparse.Namespace(time_budget_min=minutes)
+
+
+def test_budget_settings_from_config_and_flag():
+    cfg = {"all": {"time_budget_min": 150, "elastic_stage": "mp-causal", "reserve_min": 12}}
+    assert budget_settings(_args(None), cfg) == (9000.0, "mp-causal", 720.0)
+    assert budget_settings(_args(30.0), cfg) == (1800.0, "mp-causal", 720.0)  # the flag wins
+    assert budget_settings(_args(0.0), cfg)[0] is None  # 0 = no budget
+    assert budget_settings(_args(None), {}) == (None, "mp-causal", 0.0)  # no `all` block: no budget
+
+
+def test_budget_settings_reject_bad_values():
+    with pytest.raises(ValueError, match="elastic_stage"):
+        budget_settings(_args(None), {"all": {"elastic_stage": "mp-causl"}})
+    with pytest.raises(ValueError, match="time budget"):
+        budget_settings(_args(-5.0), {})
+    with pytest.raises(ValueError, match="reserve_min"):
+        budget_settings(_args(None), {"all": {"reserve_min": -1}})
