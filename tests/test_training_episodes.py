@@ -184,3 +184,32 @@ def test_sampled_type_uses_the_shared_rng():
     out = run_episode(EpisodeConfig(seed=3, episode=7, world_kind="flat"))
     assert out.episode_type in SPEC_TABLE
     assert out.trace.num_ticks > PRE_ROLL_TICKS
+
+
+# ---------------------------------------------------------------------------------------------
+# lookAround (ours, opt-in)
+# ---------------------------------------------------------------------------------------------
+
+
+def test_look_around_is_opt_in():
+    assert registry.opt_in_training_types() == ["lookAround"]
+    assert "lookAround" not in registry.training_types() and "lookAround" not in registry.sampling_weights()
+    assert registry.sampling_weights(["lookAround"]) == {"lookAround": 1.0}  # named: the only type sampled
+
+
+@pytest.mark.parametrize("world_kind", WORLD_KINDS)
+def test_look_around_turns_often_at_varied_rates(world_kind):
+    """Camera turns on a large share of ticks, with rates spread over the whole per-tick range and both
+    directions, starting and stopping often (so a clip's past does not predict its turns); pitch bounded."""
+    out = _run("lookAround", world_kind)
+    assert not out.aborted, out.abort_reason
+    for recs in out.trace.records:
+        camera = np.array([rec["action"]["camera"] for rec in recs[IDLE_TICKS:]])
+        yaw = camera[:, 0] if np.abs(camera[:, 0]).sum() >= np.abs(camera[:, 1]).sum() else camera[:, 1]
+        turning = np.abs(yaw) > 1e-6
+        assert 0.3 < turning.mean() < 0.9
+        assert np.abs(camera).max() <= MAX_CAMERA_RAD
+        assert (yaw > 0).sum() > 20 and (yaw < 0).sum() > 20
+        assert np.percentile(np.abs(yaw[turning]), 90) > 3 * np.percentile(np.abs(yaw[turning]), 10)
+        assert np.count_nonzero(np.diff(turning.astype(int))) > 40  # onsets and stops
+        assert max(abs(rec["pitch"]) for rec in recs) <= np.radians(30.0) + 0.2  # look_at_player may exceed a bit

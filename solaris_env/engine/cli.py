@@ -92,9 +92,10 @@ def training_jobs(args) -> list[Job]:
 
     types = args.types
     if types:
-        unknown = sorted(set(types) - set(registry.training_types()))
+        known = registry.training_types() + registry.opt_in_training_types()
+        unknown = sorted(set(types) - set(known))
         if unknown:
-            raise SystemExit(f"unknown training types {unknown}; known: {registry.training_types()}")
+            raise SystemExit(f"unknown training types {unknown}; known: {known}")
     jobs = []
     for e in range(args.episodes):
         instance = args.instance_offset + e % args.instances
@@ -398,7 +399,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--instances", type=int, default=2, help="training: episode e runs on instance e mod this")
     c.add_argument("--instance-offset", type=int, default=0, help="added to every instance id")
     c.add_argument("--test-fraction", type=float, default=0.01, help="training: deterministic fraction in duet/test")
-    c.add_argument("--types", nargs="+", default=None, help="training: sample only these episode types")
+    c.add_argument("--types", nargs="+", default=None, help="training: sample only these episode types (also the opt-in ones, e.g. lookAround)")
     c.add_argument("--eval", action="store_true", help="collect the eval sets instead of training data")
     c.add_argument("--eval-types", nargs="+", default=None, help="eval: these types (default: all registered)")
     c.add_argument("--chunk-ticks", type=int, default=None,

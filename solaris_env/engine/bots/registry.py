@@ -30,6 +30,8 @@ class EpisodeSpec:
         is_eval: eval types are never sampled for training data.
         world: forced world kind for eval types (``"flat"`` or ``"normal"``), None = any.
         max_s: hard cap on the recorded length; reaching it aborts the episode.
+        in_default_mix: False for our opt-in types (not in the reference's table): never sampled unless
+            named (``collect --types``).
     """
 
     name: str
@@ -42,6 +44,7 @@ class EpisodeSpec:
     is_eval: bool = False
     world: str | None = None
     max_s: float = 180.0
+    in_default_mix: bool = True
 
 
 EPISODES: dict[str, EpisodeSpec] = {}
@@ -60,8 +63,15 @@ def _load_all() -> None:
 
 
 def training_types() -> list[str]:
+    """The reference's training types: the default mix of a collect."""
     _load_all()
-    return sorted(n for n, s in EPISODES.items() if not s.is_eval)
+    return sorted(n for n, s in EPISODES.items() if not s.is_eval and s.in_default_mix)
+
+
+def opt_in_training_types() -> list[str]:
+    """Our extra training types, collected only when named (``collect --types``)."""
+    _load_all()
+    return sorted(n for n, s in EPISODES.items() if not s.is_eval and not s.in_default_mix)
 
 
 def eval_types() -> list[str]:

@@ -26,7 +26,7 @@ import numpy as np
 
 from solaris_env.engine import constants as C
 from solaris_env.engine.blocks import Block, Item
-from solaris_env.engine.bots.controller import MOVE_KEYS, REVERSE, Actions, Bot, EpisodeAbort
+from solaris_env.engine.bots.controller import MAX_TURN_RAD, MOVE_KEYS, REVERSE, Actions, Bot, EpisodeAbort, act
 from solaris_env.engine.bots.registry import EpisodeSpec, register
 from solaris_env.engine.bots.runner import face
 from solaris_env.engine.physics import Player, pitch_to, yaw_to
@@ -244,6 +244,50 @@ def walk_look(bot: Bot) -> Actions:
         if walks:
             for _ in range(action_count):
                 yield from _random_walk(bot, bot.rng.uniform(WALK_MIN, WALK_MAX))
+
+
+# ---------------------------------------------------------------------------------------------
+# lookAround (ours, opt-in): action coverage for the world model
+# ---------------------------------------------------------------------------------------------
+
+LOOK_AROUND_TICKS = 600  # ~30 s per bot
+LOOK_AROUND_SEGMENT_TICKS = (2, 16)  # each segment holds one camera rate and one key set this long
+LOOK_AROUND_PITCH_MAX_DEG = 30.0  # pitch stays within +-this: the horizon remains in view
+LOOK_AROUND_FACE_PROB = 0.15  # a segment that looks back at the partner instead (keeps it on screen often)
+LOOK_AROUND_KEYS = ((), ("forward",), ("forward",), ("back",), ("left",), ("right",), ("forward", "jump"))
+
+
+def _look_around_segment(bot: Bot) -> Actions:
+    """One segment: a camera mode (still / constant turn / a single-tick turn every 4 ticks, the dream env's
+    per-step turn) drawn at random, keys drawn at random, for 2-16 ticks."""
+    rng = bot.rng
+    ticks = int(rng.integers(LOOK_AROUND_SEGMENT_TICKS[0], LOOK_AROUND_SEGMENT_TICKS[1] + 1))
+    keys = {k: 1 for k in LOOK_AROUND_KEYS[int(rng.integers(len(LOOK_AROUND_KEYS)))]}
+    mode = rng.choice(("still", "turn", "turn", "impulse"))
+    q = math.radians(C.LOOK_STEP_DEG)
+    cap = round(MAX_TURN_RAD / q)  # in 0.15-degree steps
+    yaw_rate = int(rng.integers(-cap, cap + 1)) * q
+    pitch_rate = int(rng.integers(-cap // 2, cap // 2 + 1)) * q if rng.random() < 0.3 else 0.0
+    limit = math.radians(LOOK_AROUND_PITCH_MAX_DEG)
+    for t in range(ticks):
+        moving = mode == "turn" or (mode == "impulse" and t % 4 == 0)
+        dyaw = yaw_rate if moving else 0.0
+        dpitch = pitch_rate if moving and abs(bot.me.pitch + pitch_rate) <= limit else 0.0
+        yield act((dyaw, dpitch), **keys)
+
+
+def look_around(bot: Bot) -> Actions:
+    """Both bots turn and walk at random for ~30 s: camera turns that start, stop and change rate at random
+    (the history of a clip does not predict them), now and then a look back at the partner. Not a reference
+    type: world-model data whose camera actions are the only explanation of the view's motion."""
+    yield from bot.barrier("lookAround")
+    yield from bot.look_at_player(bot.other, BOT_LOOK_DPS)
+    start = bot.game.tick
+    while bot.game.tick - start < LOOK_AROUND_TICKS:
+        if bot.rng.random() < LOOK_AROUND_FACE_PROB:
+            yield from bot.look_at_player(bot.other, BOT_LOOK_DPS)
+        else:
+            yield from _look_around_segment(bot)
 
 
 LOOK_AWAY_SPREAD_DEG = 90.0  # walkLookAway turns to yaw + 180 deg + U(-90, 90) deg
@@ -1115,3 +1159,4 @@ register(EpisodeSpec("straightLineWalk", "Movement", 20, 10, 15, straight_line_w
 register(EpisodeSpec("towerBridge", "Building", 22, 12, 20, tower_bridge, _tower_setup))
 register(EpisodeSpec("walkLook", "Movement", 60, 10, 15, walk_look))
 register(EpisodeSpec("walkLookAway", "Movement", 60, 10, 15, walk_look_away))
+register(EpisodeSpec("lookAround", "Movement", 30, 6, 12, look_around, in_default_mix=False))
