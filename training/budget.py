@@ -55,8 +55,8 @@ class RunClock:
     def __init__(self, out: str | Path, save_every_s: float = SAVE_EVERY_S) -> None:
         self.path = Path(out) / CLOCK_FILE
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self.record_ = json.loads(self.path.read_text()) if self.path.is_file() else {"spent_s": 0.0, "stages": {}}
-        self._before = float(self.record_["spent_s"])
+        self.data = json.loads(self.path.read_text()) if self.path.is_file() else {"spent_s": 0.0, "stages": {}}
+        self._before = float(self.data["spent_s"])
         self._t0 = time.time()
         self._save_every_s = save_every_s
         self._lock = threading.Lock()
@@ -68,12 +68,12 @@ class RunClock:
 
     def save(self) -> None:
         with self._lock:
-            self.record_["spent_s"] = self.spent()
-            _write_json_atomic(self.path, self.record_)
+            self.data["spent_s"] = self.spent()
+            _write_json_atomic(self.path, self.data)
 
     def record(self, key: str, value) -> None:
         with self._lock:
-            self.record_["stages"][key] = value
+            self.data["stages"][key] = value
         self.save()
 
     def start(self) -> RunClock:

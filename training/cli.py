@@ -91,7 +91,7 @@ def cmd_all(args) -> int:
     import time
 
     from training.budget import RunClock, elastic_deadline
-    from training.checkpointing import Checkpointer
+    from training.metrics import read_metrics
     from training.train import model_dir, stage_dir
 
     stage_cfg = _stage_cfg(args)
@@ -100,7 +100,7 @@ def cmd_all(args) -> int:
     try:
         t = time.perf_counter()
         collect_if_missing(Path(args.data), args.preset, stage_cfg["collect"])
-        clock.record("collect_s", clock.record_["stages"].get("collect_s", 0.0) + time.perf_counter() - t)
+        clock.record("collect_s", clock.data["stages"].get("collect_s", 0.0) + time.perf_counter() - t)
         for stage in STAGE_COMMANDS:
             if (model_dir(args.out, stage) / "config.json").is_file():  # finished earlier (resume = continue)
                 print(f"{stage}: finished earlier, skipped")
@@ -114,14 +114,12 @@ def cmd_all(args) -> int:
             t = time.perf_counter()
             run_stage(stage, args, stage_cfg, deadline)
             clock.record(f"{stage}_s", time.perf_counter() - t)
-            if deadline is not None:
-                ckpt = Checkpointer(stage_dir(args.out, stage) / "checkpoints")
-                clock.record(f"{stage}_steps", ckpt.latest_step())
-                ckpt.close()
-            print(f"{stage}: done in {clock.record_['stages'][f'{stage}_s'] / 60:.1f} min")
+            if deadline is not None:  # the step it reached: the loop always logs its last step
+                clock.record(f"{stage}_steps", read_metrics(stage_dir(args.out, stage) / "metrics.jsonl")[-1]["step"])
+            print(f"{stage}: done in {clock.data['stages'][f'{stage}_s'] / 60:.1f} min")
     finally:
         clock.stop()
-    print(f"all stages done; {clock.spent() / 60:.1f} min of wall clock in {args.out}: {clock.record_['stages']}")
+    print(f"all stages done; {clock.spent() / 60:.1f} min of wall clock in {args.out}: {clock.data['stages']}")
     return 0
 
 

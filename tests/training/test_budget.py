@@ -32,7 +32,7 @@ def test_run_clock_accumulates_across_invocations(tmp_path):
     assert spent >= 0.05
     second = RunClock(tmp_path)  # a resumed `all`: counts from where the first stopped
     assert second.spent() >= spent
-    assert second.record_["stages"] == {"collect_s": 0.05}
+    assert second.data["stages"] == {"collect_s": 0.05}
     time.sleep(0.05)
     second.save()
     assert json.loads((tmp_path / CLOCK_FILE).read_text())["spent_s"] >= spent + 0.05
