@@ -525,6 +525,22 @@ def with_decoder(model: str | Path, decoder_from: str | Path, dest: str | Path) 
     return Path(dest)
 
 
+def with_mouse_input_gain(model: str | Path, gain: float, dest: str | Path) -> Path:
+    """Write ``model`` under ``mouse_input_gain = gain`` computing the same function (the mouse rows of every
+    ``mouse_mlp`` first kernel scaled by old / new gain), so that further training moves its camera pathway
+    ``gain / old`` times faster per Adam step (``config.ActionConfig.mouse_input_gain``)."""
+    from solaris_env.world_model.action_module import rescaled_mouse_kernel
+
+    base = WorldModel.load(model)
+    old = base.config
+    cfg = old.replace(action=dataclasses.replace(old.action, mouse_input_gain=float(gain)))
+    dit_state, vae_state, encoder_state = base.params
+    kernel = dit_state["blocks"]["action_model"]["mouse_mlp"]["layers"][0]["kernel"]
+    kernel.set_value(rescaled_mouse_kernel(kernel.get_value(), old, float(gain)))
+    checkpoint.save(dest, cfg, dict(zip(COMPONENTS, (dit_state, vae_state, encoder_state))))
+    return Path(dest)
+
+
 # ---------------------------------------------------------------------------------------------
 # Shipping
 # ---------------------------------------------------------------------------------------------

@@ -21,6 +21,8 @@ against rolling caches). Both share the projections below.
 
 from __future__ import annotations
 
+import math
+
 import jax
 import jax.numpy as jnp
 from flax import nnx
@@ -74,6 +76,20 @@ def _from_locations(y_bFNK: jax.Array, batch: int) -> jax.Array:
     return y_bFNK.reshape(batch, bs // batch, f, n * k).transpose(0, 2, 1, 3)
 
 
+def mouse_kernel_rows(cfg: WorldModelConfig) -> slice:
+    """The rows of ``mouse_mlp``'s first kernel that read the mouse window (its input is [tokens, mouse])."""
+    return slice(cfg.dit.dim, cfg.mouse_in_dim)
+
+
+def rescaled_mouse_kernel(kernel_LIO: jax.Array, cfg: WorldModelConfig, new_gain: float) -> jax.Array:
+    """``mouse_mlp``'s first kernel (layers stacked first) for ``mouse_input_gain = new_gain`` computing the
+    same function as ``kernel_LIO`` under ``cfg.action.mouse_input_gain``: the mouse rows times old / new."""
+    if not (math.isfinite(new_gain) and new_gain > 0):
+        raise ValueError(f"mouse_input_gain must be a finite number > 0, got {new_gain}")
+    rows = mouse_kernel_rows(cfg)
+    return kernel_LIO.at[..., rows, :].multiply(cfg.action.mouse_input_gain / new_gain)
+
+
 # ---------------------------------------------------------------------------------------------
 # Module
 # ---------------------------------------------------------------------------------------------
@@ -92,6 +108,7 @@ class ActionModule(nnx.Module):
         a, d = cfg.action, cfg.dit
         kw = dict(dtype=jnp.dtype(d.dtype), param_dtype=jnp.dtype(d.param_dtype), rngs=rngs)
         self.num_heads, self.impl, self.dtype = a.num_heads, d.attention_impl, kw["dtype"]
+        self.mouse_input_gain = a.mouse_input_gain
         self.keyboard_embed = nnx.Sequential(
             dense(cfg.keyboard_in_dim, a.keyboard_embed_dim, use_bias=True, **kw), jax.nn.silu,
             dense(a.keyboard_embed_dim, a.keyboard_embed_dim, use_bias=True, **kw))
@@ -119,6 +136,8 @@ class ActionModule(nnx.Module):
         """-> q, k, v of shape (B * L, F, N, K); q and k normed and rotated."""
         b, f, s, _ = x_BFLD.shape
         m_BF1E = mouse_BFWA.reshape(b, f, 1, -1).astype(x_BFLD.dtype)  # frame-major [m0_0, m0_1, m1_0, ...]
+        if self.mouse_input_gain != 1.0:
+            m_BF1E = m_BF1E * self.mouse_input_gain
         m_BFLE = jnp.broadcast_to(m_BF1E, (b, f, s, m_BF1E.shape[-1]))
         h = self.mouse_mlp(jnp.concatenate([x_BFLD, m_BFLE], axis=-1))
         qkv = self.t_qkv(h).reshape(b, f, s, 3, self.num_heads, -1)  # layout (3, N, K)

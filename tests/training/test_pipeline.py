@@ -141,6 +141,29 @@ def test_rollout_regression_stage_runs_from_stage_3(run, data):
     assert (model_dir(run, "mp-rollout") / "config.json").is_file()
 
 
+def test_mouse_gain_writes_the_same_model_under_another_gain(run, tmp_path):
+    """``solaris-train mouse-gain``: the new config's gain, the mouse rows rescaled, the same generated frames
+    (uint8 frames of a camera-turning rollout equal within one grey level)."""
+    import numpy as np
+
+    from solaris_env.world_model.world_model import WorldModel
+
+    src = model_dir(run, "mp-causal")
+    assert cli.main(["mouse-gain", str(src), "--gain", "8", "--out", str(tmp_path / "g8")]) == 0
+    base, gained = WorldModel.load(src), WorldModel.load(tmp_path / "g8")
+    assert base.config.action.mouse_input_gain == 1.0 and gained.config.action.mouse_input_gain == 8.0
+    cfg = base.config
+    rng = np.random.default_rng(0)
+    first = rng.integers(0, 256, (1, cfg.num_players, cfg.frame_height, cfg.frame_width, 3), dtype=np.uint8)
+    actions = np.zeros((1, cfg.num_players, base.frames_per_step, 25), np.float32)
+    actions[..., 0, 23] = 0.6  # a yaw turn on the first tick (scaled camera units)
+    outs = []
+    for model in (base, gained):
+        frames, _ = model.step(model.init(first, 0), actions)
+        outs.append(np.asarray(frames, np.int16))
+    assert np.abs(outs[0] - outs[1]).max() <= 1
+
+
 def test_self_forcing_stage_runs_from_stages_2_and_3(run, data):
     assert cli.main(["self-forcing", "--preset", "test", "--data", str(data), "--out", str(run)]) == 0
     assert (model_dir(run, "self-forcing") / "config.json").is_file()

@@ -16,7 +16,8 @@ import pytest
 from flax import nnx
 
 from solaris_env.world_model import kv_cache
-from solaris_env.world_model.action_module import (action_windows, left_pad_actions, padded_action_length,
+from solaris_env.world_model.action_module import (action_windows, left_pad_actions, mouse_kernel_rows,
+                                                   padded_action_length, rescaled_mouse_kernel,
                                                    window_at)
 from solaris_env.world_model.config import DiTConfig, WorldModelConfig
 from solaris_env.world_model.dit import WorldDiT, count_params, from_stream, timesteps_to_stream, to_stream
@@ -353,6 +354,48 @@ def test_only_the_first_num_action_blocks_use_their_action_module(cfg2, model2, 
         kernel[...] = kernel[...].at[layer].add(0.5)
         delta = float(jnp.abs(causal_fn(perturbed, *_seq_args(inp2)) - base).max())
         assert (delta > 1e-4) == should_change, (layer, delta)
+
+
+def _with_gain(cfg, model, gain: float, rescale: bool):
+    """``model``'s weights under ``mouse_input_gain = gain`` (mouse kernel rows rescaled or kept)."""
+    new_cfg = cfg.replace(action=dataclasses.replace(cfg.action, mouse_input_gain=gain))
+    graphdef, _ = nnx.split(nnx.eval_shape(lambda: WorldDiT(new_cfg, rngs=nnx.Rngs(0))))
+    state = nnx.state(nnx.clone(model))
+    if rescale:
+        kernel = state["blocks"]["action_model"]["mouse_mlp"]["layers"][0]["kernel"]
+        kernel.set_value(rescaled_mouse_kernel(kernel.get_value(), cfg, gain))
+    return nnx.merge(graphdef, state)
+
+
+def test_mouse_input_gain_scales_the_mouse_window_only(cfg2, model2, inp2):
+    """Gain g with the same weights == gain 1 fed g * mouse (keyboard untouched), and it changes outputs."""
+    gained = _with_gain(cfg2, model2, 4.0, rescale=False)
+    base = causal_fn(model2, *_seq_args(inp2))
+    out = causal_fn(gained, *_seq_args(inp2))
+    fed = causal_fn(model2, *_seq_args(dict(inp2, mouse=4.0 * inp2["mouse"])))
+    np.testing.assert_allclose(out, fed, atol=TOL, rtol=TOL)
+    assert float(jnp.abs(out - base).max()) > 1e-3
+
+
+@pytest.mark.parametrize("gain", [0.5, 10.0])
+def test_rescaled_mouse_kernel_keeps_the_function(cfg2, model2, inp2, gain):
+    """The mouse rows scaled by old/new gain compute the same velocities (what `solaris-train mouse-gain` does)."""
+    rescaled = _with_gain(cfg2, model2, gain, rescale=True)
+    np.testing.assert_allclose(causal_fn(rescaled, *_seq_args(inp2)), causal_fn(model2, *_seq_args(inp2)),
+                               atol=TOL, rtol=TOL)
+    k_old = model2.blocks.action_model.mouse_mlp.layers[0].kernel[...]
+    k_new = rescaled.blocks.action_model.mouse_mlp.layers[0].kernel[...]
+    rows = mouse_kernel_rows(cfg2)
+    np.testing.assert_array_equal(k_new[:, :cfg2.dit.dim], k_old[:, :cfg2.dit.dim])  # token rows untouched
+    np.testing.assert_allclose(k_new[:, rows], k_old[:, rows] / gain, rtol=1e-6)
+
+
+@pytest.mark.parametrize("gain", [0.0, -1.0, float("nan"), float("inf")])
+def test_mouse_input_gain_must_be_positive_and_finite(cfg2, gain):
+    with pytest.raises(ValueError, match="mouse_input_gain"):
+        dataclasses.replace(cfg2.action, mouse_input_gain=gain)
+    with pytest.raises(ValueError, match="mouse_input_gain"):
+        rescaled_mouse_kernel(jnp.ones((1, cfg2.mouse_in_dim, 4)), cfg2, gain)
 
 
 # ---------------------------------------------------------------------------------------------
