@@ -129,9 +129,9 @@ def cmd_with_decoder(args) -> int:
     return 0
 
 
-def cmd_mouse_gain(args) -> int:
-    from training.train import with_mouse_input_gain
-    print(f"wrote {with_mouse_input_gain(args.model, args.gain, args.out)}")
+def cmd_action_conditioning(args) -> int:
+    from training.train import with_action_conditioning
+    print(f"wrote {with_action_conditioning(args.model, args.out, args.mouse_gain, args.adaln_actions or None)}")
     return 0
 
 
@@ -173,12 +173,15 @@ def build_parser() -> argparse.ArgumentParser:
     w.add_argument("--decoder-from", required=True, help="a vae-decoder/model sharing the model's encoder")
     w.add_argument("--out", required=True, help="the new model directory")
     w.set_defaults(func=cmd_with_decoder)
-    g = sub.add_parser("mouse-gain", help="a model under another mouse_input_gain, computing the same function "
-                                          "(its camera pathway then trains gain-times faster)")
+    g = sub.add_parser("action-conditioning", help="a model under another action conditioning, computing the "
+                                                   "same function (then fine-tune it)")
     g.add_argument("model", help="a model/ directory")
-    g.add_argument("--gain", type=float, required=True, help="the new ActionConfig.mouse_input_gain (> 0)")
+    g.add_argument("--mouse-gain", type=float, default=None,
+                   help="the new ActionConfig.mouse_input_gain (> 0): the camera pathway then trains that much faster")
+    g.add_argument("--adaln-actions", action="store_true",
+                   help="add the zero-initialised action embedding of the adaLN path (ActionConfig.adaln_actions)")
     g.add_argument("--out", required=True, help="the new model directory")
-    g.set_defaults(func=cmd_mouse_gain)
+    g.set_defaults(func=cmd_action_conditioning)
     i = sub.add_parser("install", help="copy a trained model to the package's default-model directory")
     i.add_argument("model", help="a model/ directory written by a stage")
     i.add_argument("--dest", default=None, help="default: solaris_env/assets/default")
@@ -191,7 +194,7 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
     logging.getLogger("absl").setLevel(logging.WARNING)  # orbax logs every save step at INFO
     args = build_parser().parse_args(argv)
-    if args.command not in ("install", "with-decoder", "mouse-gain"):
+    if args.command not in ("install", "with-decoder", "action-conditioning"):
         from training.distributed import maybe_initialize_distributed
         maybe_initialize_distributed()  # multi-host when JAX_COORDINATOR_ADDRESS / JAX_NUM_PROCESSES are set
     return args.func(args)

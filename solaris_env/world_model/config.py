@@ -95,6 +95,10 @@ class ActionConfig:
     # kernel move the pre-activations by ~2 % of the token rows' share and, under Adam's per-weight step,
     # learn that much more slowly (measured on the session-3 tiny model: 0.07 against 1-3.9 RMS).
     mouse_input_gain: float = 1.0
+    # Ours (False = the official model): each latent frame's action window (mouse and keyboard, flattened) also
+    # enters the adaLN path, embedded by an MLP whose last layer starts at zero and added to the frame's time
+    # embedding (DiT's class conditioning): every block's shift/scale/gate then depends on the frame's actions.
+    adaln_actions: bool = False
 
     def __post_init__(self):
         _require(math.isfinite(self.mouse_input_gain) and self.mouse_input_gain > 0,
@@ -355,6 +359,11 @@ class WorldModelConfig:
     def cache_tokens(self) -> int:
         """Self-attention KV cache length: window x players x tokens (10560 for solaris)."""
         return self.dit.window * self.stream_players * self.tokens_per_frame
+
+    @property
+    def action_embedding_in_dim(self) -> int:
+        """The flattened [mouse | keyboard] window of one latent frame (``ActionConfig.adaln_actions``)."""
+        return self.action_window * self.players_in_channels * self.action.action_dim
 
     @property
     def action_window(self) -> int:

@@ -477,6 +477,12 @@ class WorldDiT(nnx.Module):
         self.time_projection = nnx.Sequential(jax.nn.silu, dense(d.dim, 6 * d.dim, use_bias=True, **kw))
         self.img_emb = ImageContextProjection(cfg, rngs=rngs)
         self.player_embed = nnx.Embed(d.max_players, d.dim, **kw)
+        # ours, None in the official layout (ActionConfig.adaln_actions); the last layer starts at zero, so a
+        # trained model gains the path without changing its function
+        self.action_embedding = nnx.Sequential(
+            dense(cfg.action_embedding_in_dim, d.dim, use_bias=True, kernel_init=normal, **kw), jax.nn.silu,
+            dense(d.dim, d.dim, use_bias=True, kernel_init=nnx.initializers.zeros_init(), **kw),
+        ) if cfg.action.adaln_actions else None
         self.blocks = _stacked_blocks(cfg, rngs)
         self.head = Head(cfg, rngs=rngs)
 
@@ -729,6 +735,9 @@ class WorldDiT(nnx.Module):
         tokens = self.patch_embedding(xc.reshape((b * p,) + xc.shape[2:]))  # (B*P, F, h, w, D)
         tokens = tokens.reshape(b, p, f, -1, tokens.shape[-1])
         e = self.time_embedding(sinusoidal_embedding(t, self.cfg.dit.freq_dim).astype(dtype))  # (B, P, F, D)
+        if self.action_embedding is not None:
+            window_BPFE = jnp.concatenate([mouse_BPFWA, keyboard_BPFWA], axis=-1).reshape(b, p, f, -1)
+            e = e + self.action_embedding(window_BPFE.astype(dtype))
         e0 = self.time_projection(e).reshape(b, p, f, 6, -1)
         player = self.player_embed(jnp.arange(p))
         projected = None if context is None else self.img_emb(context.astype(dtype))

@@ -141,27 +141,34 @@ def test_rollout_regression_stage_runs_from_stage_3(run, data):
     assert (model_dir(run, "mp-rollout") / "config.json").is_file()
 
 
-def test_mouse_gain_writes_the_same_model_under_another_gain(run, tmp_path):
-    """``solaris-train mouse-gain``: the new config's gain, the mouse rows rescaled, the same generated frames
-    (uint8 frames of a camera-turning rollout equal within one grey level)."""
+def test_action_conditioning_rewrites_a_model_that_computes_the_same(run, tmp_path):
+    """``solaris-train action-conditioning``: the new config (mouse gain, adaLN action path), the mouse rows
+    rescaled, the new embedding at zero, the same generated frames (within one grey level) for a turning
+    rollout; the new model trains (its adaLN path gets gradients); dropping a trained path is refused."""
     import numpy as np
 
     from solaris_env.world_model.world_model import WorldModel
+    from training.train import with_action_conditioning
 
     src = model_dir(run, "mp-causal")
-    assert cli.main(["mouse-gain", str(src), "--gain", "8", "--out", str(tmp_path / "g8")]) == 0
-    base, gained = WorldModel.load(src), WorldModel.load(tmp_path / "g8")
-    assert base.config.action.mouse_input_gain == 1.0 and gained.config.action.mouse_input_gain == 8.0
+    dest = tmp_path / "g8"
+    assert cli.main(["action-conditioning", str(src), "--mouse-gain", "8", "--adaln-actions", "--out", str(dest)]) == 0
+    base, new = WorldModel.load(src), WorldModel.load(dest)
+    assert (base.config.action.mouse_input_gain, base.config.action.adaln_actions) == (1.0, False)
+    assert (new.config.action.mouse_input_gain, new.config.action.adaln_actions) == (8.0, True)
     cfg = base.config
     rng = np.random.default_rng(0)
     first = rng.integers(0, 256, (1, cfg.num_players, cfg.frame_height, cfg.frame_width, 3), dtype=np.uint8)
     actions = np.zeros((1, cfg.num_players, base.frames_per_step, 25), np.float32)
     actions[..., 0, 23] = 0.6  # a yaw turn on the first tick (scaled camera units)
+    actions[..., :, 0] = 1.0  # forward held
     outs = []
-    for model in (base, gained):
+    for model in (base, new):
         frames, _ = model.step(model.init(first, 0), actions)
         outs.append(np.asarray(frames, np.int16))
     assert np.abs(outs[0] - outs[1]).max() <= 1
+    with pytest.raises(ValueError, match="adaln_actions"):
+        with_action_conditioning(dest, tmp_path / "back", adaln_actions=False)
 
 
 def test_self_forcing_stage_runs_from_stages_2_and_3(run, data):
