@@ -30,7 +30,10 @@ from pathlib import Path
 import numpy as np
 
 RESULTS = Path(__file__).parent / "results" / "action_learnability.json"
-VARIANTS = {"official": {}, "gain10": {"mouse_input_gain": 10.0}, "adaln": {"adaln_actions": True}}
+# every variant names both settings: the preset's own defaults (tiny: gain 10) must not leak into "official"
+VARIANTS = {"official": {"mouse_input_gain": 1.0, "adaln_actions": False},
+            "gain10": {"mouse_input_gain": 10.0, "adaln_actions": False},
+            "adaln": {"mouse_input_gain": 1.0, "adaln_actions": True}}
 
 
 def smooth_fields(rng: np.random.Generator, n: int, h: int, w: int, c: int, sigma: float) -> np.ndarray:

@@ -38,6 +38,13 @@ def test_short_run_scores_every_variant(tmp_path):
         assert all(np.isfinite(f[k]) and f[k] > 0 for k in ("loss_true", "loss_negated", "loss_zeroed"))
 
 
+def test_variants_fix_both_settings_whatever_the_preset():
+    """Regression: with the tiny preset's gain of 10, an empty "official" override trained gain 10."""
+    for name, override in AL.VARIANTS.items():
+        assert set(override) == {"mouse_input_gain", "adaln_actions"}, name
+    assert AL.VARIANTS["official"] == {"mouse_input_gain": 1.0, "adaln_actions": False}
+
+
 def test_bad_sizes_are_refused(tmp_path):
     with pytest.raises(ValueError, match="latent-frames"):
         AL.main(["--preset", "test", "--latent-frames", "1", "--out", str(tmp_path / "x.json")])
