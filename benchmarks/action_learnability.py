@@ -15,7 +15,8 @@ shift-blind loss by reading the mouse.
 Scored on a fixed held-out batch with fixed timesteps and noise: the flow-matching loss with the true mouse,
 with it negated (the opposite shift), and zeroed; ``action_gain`` = loss(negated) / loss(true) - 1 (0 = the
 model ignores the mouse). Variants are ``ActionConfig`` settings: ``official`` (the reference design),
-``gain10`` (``mouse_input_gain`` 10), ``adaln`` (``adaln_actions``). Writes
+``gain10`` (``mouse_input_gain`` 10), ``adaln`` (``adaln_actions``), and ``camera_rope`` (the official action
+module with ``DiTConfig.camera_rope`` set to the synthetic shift: one latent pixel per ``k * yaw`` units). Writes
 ``benchmarks/results/action_learnability.json``.
 """
 
@@ -33,7 +34,18 @@ RESULTS = Path(__file__).parent / "results" / "action_learnability.json"
 # every variant names both settings: the preset's own defaults (tiny: gain 10) must not leak into "official"
 VARIANTS = {"official": {"mouse_input_gain": 1.0, "adaln_actions": False},
             "gain10": {"mouse_input_gain": 10.0, "adaln_actions": False},
-            "adaln": {"mouse_input_gain": 1.0, "adaln_actions": True}}
+            "adaln": {"mouse_input_gain": 1.0, "adaln_actions": True},
+            "camera_rope": {"mouse_input_gain": 1.0, "adaln_actions": False}}
+CAMERA_ROPE_VARIANTS = ("camera_rope",)  # the others run with camera RoPE off, named explicitly too
+
+
+def matched_camera_rope(cfg, yaw: float) -> tuple[float, float]:
+    """``DiTConfig.camera_rope`` whose width offset follows the synthetic shift: a latent frame of k ticks at
+    ``yaw`` scaled units per tick moves the field one latent pixel, 1 / patch width tokens."""
+    from solaris_env.spaces import CAMERA_SCALE_DEG
+
+    degrees_per_pixel = cfg.frames_per_step * yaw * CAMERA_SCALE_DEG
+    return (0.0, 1.0 / (cfg.dit.patch_size[2] * degrees_per_pixel))
 
 
 def smooth_fields(rng: np.random.Generator, n: int, h: int, w: int, c: int, sigma: float) -> np.ndarray:
@@ -92,7 +104,9 @@ def run_variant(name: str, preset: str, steps: int, batch: int, latent_frames: i
     from training.step import TrainState, make_loss_fn, make_optimizer, make_train_step
 
     base = make_preset(preset)
-    cfg = base.replace(action=dataclasses.replace(base.action, **VARIANTS[name]))
+    camera = matched_camera_rope(base, yaw) if name in CAMERA_ROPE_VARIANTS else (0.0, 0.0)
+    cfg = base.replace(action=dataclasses.replace(base.action, **VARIANTS[name]),
+                       dit=dataclasses.replace(base.dit, camera_rope=camera))
     dit = WorldDiT(cfg, rngs=nnx.Rngs(seed))
     tx = make_optimizer(lr)
     graphdef, state = TrainState.create(dit, tx, rng=seed)
@@ -126,7 +140,8 @@ def run_variant(name: str, preset: str, steps: int, batch: int, latent_frames: i
             curve.append(row)
             print(f"{name:>8s} step {step:5d}  loss true {row['loss_true']:.4f}  negated {row['loss_negated']:.4f}  "
                   f"zeroed {row['loss_zeroed']:.4f}  action_gain {row['action_gain']:+.3f}", flush=True)
-    return {"variant": name, "action_config": VARIANTS[name], "curve": curve, "final": curve[-1],
+    return {"variant": name, "action_config": VARIANTS[name], "camera_rope": list(camera), "curve": curve,
+            "final": curve[-1],
             "steps_per_s": steps / (time.perf_counter() - t0)}
 
 

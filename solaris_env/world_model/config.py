@@ -50,9 +50,20 @@ class DiTConfig:
     context_norm_eps: float = 1e-5  # the two LayerNorms of img_emb (model-spec §2 step 3)
     dtype: str = "float32"  # compute dtype (bf16 is slower than f32 on our CPUs, stack.md)
     param_dtype: str = "float32"
+    # Camera RoPE (ours; (0, 0) = off, the official model): the 3D RoPE's (height, width) positions of a frame's
+    # tokens move by minus these many token positions per degree of the player's accumulated (pitch, yaw) camera
+    # (Mineflayer signs: + = up / left, the directions the view's content then moves away from), so a static
+    # scene keeps its RoPE position while the camera turns and the cross-frame attention's relative positions
+    # are world-aligned. About the view's pixels per degree at its centre over the token size in pixels
+    # (rope.camera_positions).
+    camera_rope: tuple[float, float] = (0.0, 0.0)
 
     def __post_init__(self):
         _require(self.dim % self.num_heads == 0, f"dim={self.dim} must be divisible by num_heads={self.num_heads}")
+        _require(len(self.camera_rope) == 2 and all(math.isfinite(c) for c in self.camera_rope),
+                 f"camera_rope must be two finite numbers (height, width positions per degree), got {self.camera_rope}")
+        _require(self.multiplayer == "attn" or not any(self.camera_rope),
+                 f"camera_rope={self.camera_rope} needs multiplayer='attn' (one RoPE grid per player)")
         _require(self.head_dim % 2 == 0, f"head_dim={self.head_dim} must be even for RoPE")
         _require(self.multiplayer in MULTIPLAYER_METHODS,
                  f"multiplayer must be one of {MULTIPLAYER_METHODS}, got {self.multiplayer!r}")
@@ -62,6 +73,10 @@ class DiTConfig:
     @property
     def head_dim(self) -> int:
         return self.dim // self.num_heads
+
+    @property
+    def camera_rope_enabled(self) -> bool:
+        return any(c != 0.0 for c in self.camera_rope)
 
     @property
     def rope_split(self) -> tuple[int, int, int]:
@@ -271,11 +286,18 @@ class SamplerConfig:
     # noise, the DMD-style rule a distilled generator is trained for); 0 = the predicted noise (the Euler step of
     # the flow ODE, the usual sampler of a model trained by flow matching alone). A rollout setting.
     renoise_eta: float = 1.0
+    # Action guidance (ours; 1 = off, the reference): every denoising pass of an AR step also runs with this
+    # step's actions replaced by the no-op (all zeros) and the velocity is v_noop + g (v - v_noop), classifier-free
+    # guidance with "do nothing" as the null action. A no-op step is unchanged; g > 1 costs one more DiT pass per
+    # sampler step. A rollout setting.
+    action_guidance: float = 1.0
 
     def __post_init__(self):
         _require(0 <= self.context_noise < self.num_train_timesteps,
                  f"context_noise must be in [0, num_train_timesteps={self.num_train_timesteps}), got {self.context_noise}")
         _require(0.0 <= self.renoise_eta <= 1.0, f"renoise_eta must be in [0, 1], got {self.renoise_eta}")
+        _require(math.isfinite(self.action_guidance) and self.action_guidance >= 0,
+                 f"action_guidance must be a finite number >= 0, got {self.action_guidance}")
 
 
 # ---------------------------------------------------------------------------------------------

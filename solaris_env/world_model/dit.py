@@ -41,6 +41,7 @@ from solaris_env.world_model.action_module import ActionModule, action_windows, 
 from solaris_env.world_model.attention import (RMSNorm, attention, attention_heads_major, dense, layer_norm,
                                                stop_gradient_where)
 from solaris_env.world_model.config import WorldModelConfig
+from solaris_env.spaces import CAMERA_SCALE_DEG
 
 # ---------------------------------------------------------------------------------------------
 # Helpers
@@ -211,7 +212,7 @@ class ContextKV(NamedTuple):
 
 class _SequencePlan(NamedTuple):
     """What distinguishes the whole-sequence modes (bidirectional / causal / teacher forcing)."""
-    angles_LJ: jax.Array  # 3D RoPE of the packed (frame, player, token) sequence
+    angles_LJ: jax.Array  # 3D RoPE of the packed (frame, player, token) sequence; (B, L, J) with camera RoPE
     token_mask: jax.Array | None  # (L, L) self-attention mask; None = full
     action_angles_FJ: jax.Array  # temporal RoPE of the action module
     frame_mask: jax.Array | None  # (F, F) action-module mask; None = full
@@ -402,7 +403,8 @@ class DiTBlock(nnx.Module):
             layer < self.num_action_blocks, self.action_model, run_actions, lambda x, mc, kc: (x, mc, kc),
             x_BPFLD, cache.mouse, cache.keyboard,
             select=_layer_of(layer) if stacked_actions else None)
-        new_cache = kv_cache.DiTCache(self_attn=self_cache, mouse=mouse_cache, keyboard=keyboard_cache)
+        new_cache = kv_cache.DiTCache(self_attn=self_cache, mouse=mouse_cache, keyboard=keyboard_cache,
+                                      camera=cache.camera)  # the caller writes the new camera offset
         return self._ffn_residual(x_BPFLD, mods), new_cache
 
 
@@ -490,17 +492,19 @@ class WorldDiT(nnx.Module):
     def forward_bidirectional(self, x, t, cond, context, mouse, keyboard) -> jax.Array:
         """Full attention over all frames (stages 1-2, the DMD teacher). Returns v like x."""
         num_frames = self._validate(x, t, cond, context, mouse, keyboard)
+        mouse_w = self._windows(mouse, num_frames)
         return self._forward_sequence(
-            x, t, cond, context, self._windows(mouse, num_frames), self._windows(keyboard, num_frames),
-            rope.frame_positions(num_frames), frame_mask=None, kv_stop_F=None)
+            x, t, cond, context, mouse_w, self._windows(keyboard, num_frames),
+            rope.frame_positions(num_frames), frame_mask=None, kv_stop_F=None, camera=self._camera(None, mouse_w))
 
     def forward_causal(self, x, t, cond, context, mouse, keyboard) -> jax.Array:
         """Block-causal sliding window over frames (diffusion forcing: t varies per frame). Returns v like x."""
         num_frames = self._validate(x, t, cond, context, mouse, keyboard)
+        mouse_w = self._windows(mouse, num_frames)
         return self._forward_sequence(
-            x, t, cond, context, self._windows(mouse, num_frames), self._windows(keyboard, num_frames),
+            x, t, cond, context, mouse_w, self._windows(keyboard, num_frames),
             rope.frame_positions(num_frames), masks.causal_window_frame_mask(num_frames, self.cfg.dit.window),
-            kv_stop_F=None)
+            kv_stop_F=None, camera=self._camera(None, mouse_w))
 
     def forward_teacher_forcing(self, clean, noisy, t_clean, t_noisy, cond, context, mouse, keyboard, *,
                                 kv_grad: bool = True, remat: bool = True) -> jax.Array:
@@ -518,14 +522,16 @@ class WorldDiT(nnx.Module):
                              f"t_noisy {t_noisy.shape}")
         twice = lambda a: jnp.concatenate([a, a], axis=2)
         kv_stop_F = None if kv_grad else np.repeat([True, False], num_frames)
+        mouse_w = self._windows(mouse, num_frames)
+        camera = self._camera(None, mouse_w)  # clean j and noisy j share frame j's offset, like its position
         v = self._forward_sequence(
             jnp.concatenate([clean, noisy], axis=2), jnp.concatenate([t_clean, t_noisy], axis=2), twice(cond),
-            context, twice(self._windows(mouse, num_frames)), twice(self._windows(keyboard, num_frames)),
+            context, twice(mouse_w), twice(self._windows(keyboard, num_frames)),
             rope.teacher_forcing_frame_positions(num_frames),
             masks.teacher_forcing_frame_mask(num_frames, self.cfg.dit.window), kv_stop_F,
             attend=functools.partial(_teacher_forcing_attention, num_frames=num_frames, window=self.cfg.dit.window,
                                      block=noisy.shape[1] * math.prod(self._grid()), impl=self.cfg.dit.attention_impl),
-            remat=remat)
+            remat=remat, camera=None if camera is None else twice(camera))
         return v[:, :, num_frames:]
 
     def decode_step(self, x, t, cond, context, mouse, keyboard, cache: kv_cache.DiTCache,
@@ -652,6 +658,13 @@ class WorldDiT(nnx.Module):
         num_frames = tokens.shape[2]  # tokens (B, P, F, L, D); > 1: block-causal, the first ``keep`` cached
         angles = rope.rope_3d_angles(d.rope_split, d.rope_theta, num_frames, gh, gw, tokens.shape[1], start_frame)
         action_angles = rope.temporal_rope_angles(c.action.rope_dims, c.action.rope_theta, num_frames, start_frame)
+        camera = None
+        if d.camera_rope_enabled:  # continue from the offset of the last cached frame
+            base = (cache[0] if isinstance(cache, tuple) else cache).camera
+            if base is None:
+                raise ValueError("camera_rope is on but the cache has no camera offset (kv_cache.init_cache)")
+            camera = self._camera(base if isinstance(cache, tuple) else base[0], cond_in.mouse_BPFWA)
+            angles = angles[None] + rope.camera_rope_angles(d.rope_split, d.rope_theta, camera, gh, gw)
         if layers is not None:  # one module per layer, static indices (see decode_step_cached)
             if len(layers) != d.num_layers:
                 raise ValueError(f"layers has {len(layers)} blocks; the config has num_layers={d.num_layers}")
@@ -670,9 +683,9 @@ class WorldDiT(nnx.Module):
             if not keep_cache:
                 new_caches = None
             elif not per_layer:
-                new_caches = kv_cache.stack(tuple(new_caches))
+                new_caches = self._with_camera(kv_cache.stack(tuple(new_caches)), camera, keep)
             else:
-                new_caches = tuple(new_caches)
+                new_caches = tuple(self._with_camera(n, camera, keep) for n in new_caches)
             return self._unpatchify(self.head(tokens, e)), new_caches
 
         # Per-layer caches and context K/V are read with a dynamic index (and the caches written back
@@ -694,7 +707,26 @@ class WorldDiT(nnx.Module):
 
         (tokens, new_caches), _ = jax.lax.scan(body, (tokens, cache if keep_cache else None),
                                                (rest_state, jnp.arange(d.num_layers)), unroll=unroll)
+        if keep_cache:
+            new_caches = self._with_camera(new_caches, camera, keep)
         return self._unpatchify(self.head(tokens, e)), new_caches
+
+    def _camera(self, base_BP2, mouse_BPFWA):
+        """Camera RoPE offsets (B, P, F, 2) of the frames whose mouse windows are given, continuing from
+        ``base`` (None: from 0); None when ``camera_rope`` is off."""
+        d = self.cfg.dit
+        if not d.camera_rope_enabled:
+            return None
+        inc = rope.camera_increments(mouse_BPFWA, self.cfg.frames_per_step, d.camera_rope, CAMERA_SCALE_DEG)
+        return rope.camera_positions(base_BP2, inc)
+
+    @staticmethod
+    def _with_camera(cache: kv_cache.DiTCache, camera_BPF2, keep: int | None) -> kv_cache.DiTCache:
+        """The cache with the offset of its newest kept frame (``keep`` new frames, default all)."""
+        if camera_BPF2 is None:
+            return cache
+        last = camera_BPF2[:, :, (camera_BPF2.shape[2] if keep is None else keep) - 1]
+        return cache.replace(camera=jnp.broadcast_to(last, cache.camera.shape).astype(cache.camera.dtype))
 
     def _grid(self) -> tuple[int, int]:
         _, ph, pw = self.cfg.dit.patch_size
@@ -744,22 +776,25 @@ class WorldDiT(nnx.Module):
         cond_in = _Conditioning(e0, player, projected, mouse_BPFWA, keyboard_BPFWA)
         return cond_in, tokens, e
 
-    def _sequence_plan(self, frame_pos_F, frame_mask, kv_stop_F, num_players: int) -> _SequencePlan:
+    def _sequence_plan(self, frame_pos_F, frame_mask, kv_stop_F, num_players: int, camera=None) -> _SequencePlan:
         c, d = self.cfg, self.cfg.dit
         gh, gw = self._grid()
+        angles = rope.rope_3d_angles_at(d.rope_split, d.rope_theta, frame_pos_F, gh, gw, num_players)
+        if camera is not None:
+            angles = angles[None] + rope.camera_rope_angles(d.rope_split, d.rope_theta, camera, gh, gw)
         block = num_players * gh * gw  # all players of a frame form one mask block
         frame_mask = None if frame_mask is None else jnp.asarray(frame_mask)
         token_mask = None if frame_mask is None else masks.expand_to_tokens(frame_mask, block)
         kv_stop_L = None if kv_stop_F is None else np.repeat(kv_stop_F, block)
         return _SequencePlan(
-            rope.rope_3d_angles_at(d.rope_split, d.rope_theta, frame_pos_F, gh, gw, num_players), token_mask,
+            angles, token_mask,
             rope.temporal_rope_angles_at(c.action.rope_dims, c.action.rope_theta, frame_pos_F), frame_mask,
             kv_stop_F, kv_stop_L)
 
     def _forward_sequence(self, x, t, cond, context, mouse_BPFWA, keyboard_BPFWA, frame_pos_F, frame_mask,
-                          kv_stop_F, attend=None, remat: bool = False) -> jax.Array:
+                          kv_stop_F, attend=None, remat: bool = False, camera=None) -> jax.Array:
         cond_in, tokens, e = self._prepare(x, t, cond, context, mouse_BPFWA, keyboard_BPFWA)
-        plan = self._sequence_plan(frame_pos_F, frame_mask, kv_stop_F, x.shape[1])
+        plan = self._sequence_plan(frame_pos_F, frame_mask, kv_stop_F, x.shape[1], camera)
         if attend is not None:  # the self-attention brings its own mask; no dense token mask
             plan = plan._replace(token_mask=None, attend=attend)
 

@@ -20,6 +20,9 @@ Three caches per DiT (``DiTCache``), each with one entry per layer:
 | mouse | (layers, B * P * tokens, Na, window, Ka), heads-major | one per frame, per spatial location |
 | keyboard | (layers, B * P, Na, window, Ka), heads-major | one per frame |
 
+With camera RoPE (``DiTConfig.camera_rope``) the cache also carries ``camera``, the accumulated RoPE offset
+of the last cached frame, so the next frame's offset continues from it.
+
 Mouse/keyboard caches exist for every layer (uniform scan) but only the first ``num_action_blocks``
 layers touch them; the others stay empty.
 
@@ -61,6 +64,9 @@ class DiTCache:
     self_attn: KVCache
     mouse: KVCache
     keyboard: KVCache
+    # camera RoPE only (``DiTConfig.camera_rope``): (..., B, P, 2) accumulated (height, width) position offset of
+    # the last cached frame (every layer holds the same value); None otherwise
+    camera: jax.Array | None = None
 
 
 def empty_cache(lead_shape: tuple[int, ...], batch: int, slots: int, heads: int, head_dim: int,
@@ -88,6 +94,7 @@ def init_cache(cfg: WorldModelConfig, batch: int, dtype=None) -> DiTCache:
                           a.head_dim, dtype, layout="BNSK"),
         keyboard=empty_cache(layers, batch * players, cfg.dit.window, a.num_heads, a.keyboard_head_dim, dtype,
                              layout="BNSK"),
+        camera=jnp.zeros(layers + (batch, players, 2), jnp.float32) if cfg.dit.camera_rope_enabled else None,
     )
 
 

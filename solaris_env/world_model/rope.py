@@ -10,8 +10,16 @@ Both RoPEs rotate interleaved pairs ``(x[2k], x[2k+1])`` by an angle ``pos * inv
   same interleaved pairing): only the first ``rope_dims[0]`` dims rotate, by the frame index, with
   theta 256; the height/width parts have position 0 (identity).
 
-Angle builders return ``angles_LJ`` (L positions, J = K/2 pairs); ``apply_rope`` applies them to
-``x_BLNK``. ``start_frame`` may be a traced scalar (the cached decode step).
+- Camera RoPE (ours, ``DiTConfig.camera_rope``; off in the official model): the (height, width) positions
+  of a player's tokens in latent frame i move by minus the player's accumulated camera turn times the
+  configured positions per degree (``camera_positions``), a per-(world, player, frame) offset added to the
+  3D angles (``camera_rope_angles``). A static scene then keeps its RoPE position while the camera turns
+  (content moves right in the view when the player turns left), so the attention that copies the previous
+  frame by relative position copies the world-aligned location.
+
+Angle builders return ``angles_LJ`` (L positions, J = K/2 pairs) or, with the camera offsets,
+``angles_BLJ``; ``apply_rope`` applies either to ``x_BLNK``. ``start_frame`` may be a traced scalar (the
+cached decode step).
 """
 
 from __future__ import annotations
@@ -80,15 +88,55 @@ def temporal_rope_angles(rope_dims: tuple[int, int, int], theta: float, num_fram
     return temporal_rope_angles_at(rope_dims, theta, frame_positions(num_frames, start_frame))
 
 
+def camera_increments(mouse_BPFWA: jax.Array, frames_per_step: int, camera_rope: tuple[float, float],
+                      degrees_per_unit: float) -> jax.Array:
+    """(B, P, F, 2) (height, width) position change of each latent frame over the previous one.
+
+    Args:
+        mouse_BPFWA: per-latent-frame action windows of the mouse, last dim [cameraX (yaw, + = left),
+            cameraY (pitch, + = up)] in model units; the last ``frames_per_step`` entries of frame i's window
+            are the turns between latent frames i - 1 and i.
+        camera_rope: (height, width) positions per degree (``DiTConfig.camera_rope``).
+        degrees_per_unit: degrees of one model mouse unit (``spaces.CAMERA_SCALE_DEG``).
+    """
+    if mouse_BPFWA.shape[-1] != 2:
+        raise ValueError(f"camera RoPE reads [cameraX, cameraY]; the mouse windows have {mouse_BPFWA.shape[-1]} dims")
+    turn = mouse_BPFWA[..., -frames_per_step:, :].astype(jnp.float32).sum(axis=-2) * degrees_per_unit  # [yaw, pitch]
+    return -jnp.stack([turn[..., 1] * camera_rope[0], turn[..., 0] * camera_rope[1]], axis=-1)
+
+
+def camera_positions(base_BP2: jax.Array | None, increments_BPF2: jax.Array) -> jax.Array:
+    """(B, P, F, 2) accumulated (height, width) offsets: ``base`` (the frame before these, default 0) plus
+    the running sum of the increments."""
+    pos = jnp.cumsum(increments_BPF2, axis=2)
+    return pos if base_BP2 is None else pos + base_BP2[:, :, None].astype(jnp.float32)
+
+
+def camera_rope_angles(rope_split: tuple[int, int, int], theta: float, positions_BPF2: jax.Array, grid_h: int,
+                       grid_w: int) -> jax.Array:
+    """(B, F * P * h * w, J) angles to ADD to ``rope_3d_angles_at``'s for tokens packed (frame, player, h, w):
+    0 on the frame pairs, each player's height/width offset times the axis frequencies on the others."""
+    pf, ph, pw = rope_split
+    b, p, f, _ = positions_BPF2.shape
+    pos = positions_BPF2.astype(jnp.float32).transpose(0, 2, 1, 3)  # (B, F, P, 2)
+    ang = jnp.concatenate([jnp.zeros((b, f, p, pf), jnp.float32),
+                           pos[..., :1] * jnp.asarray(_inv_freq(ph, theta), jnp.float32),
+                           pos[..., 1:] * jnp.asarray(_inv_freq(pw, theta), jnp.float32)], axis=-1)  # (B, F, P, J)
+    ang = jnp.broadcast_to(ang[:, :, :, None], (b, f, p, grid_h * grid_w, pf + ph + pw))
+    return ang.reshape(b, f * p * grid_h * grid_w, pf + ph + pw)
+
+
 def apply_rope(x_BLNK: jax.Array, angles_LJ: jax.Array) -> jax.Array:
-    """Rotate pairs (x[2k], x[2k+1]) of every head by angles_LJ[l, k] (f32), cast back to x's dtype."""
+    """Rotate pairs (x[2k], x[2k+1]) of every head by angles_LJ[l, k] (f32), cast back to x's dtype.
+    ``angles`` may also be (B, L, J), one table per batch row (camera RoPE)."""
     *lead, length, heads, head_dim = x_BLNK.shape
-    if angles_LJ.shape != (length, head_dim // 2):
+    per_row = angles_LJ.ndim == 3 and len(lead) == 1 and angles_LJ.shape[0] in (1, lead[0])
+    if angles_LJ.shape[-2:] != (length, head_dim // 2) or not (angles_LJ.ndim == 2 or per_row):
         raise ValueError(f"angles shape {angles_LJ.shape} does not match x {x_BLNK.shape}: expected "
-                         f"({length}, {head_dim // 2})")
+                         f"({length}, {head_dim // 2}) or (B, {length}, {head_dim // 2})")
     pairs = x_BLNK.astype(jnp.float32).reshape(*lead, length, heads, head_dim // 2, 2)
     re, im = pairs[..., 0], pairs[..., 1]
-    cos = jnp.cos(angles_LJ)[:, None, :]  # (L, 1, J): same rotation for every head
-    sin = jnp.sin(angles_LJ)[:, None, :]
+    cos = jnp.cos(angles_LJ)[..., None, :]  # (L, 1, J) or (B, L, 1, J): same rotation for every head
+    sin = jnp.sin(angles_LJ)[..., None, :]
     out = jnp.stack([re * cos - im * sin, re * sin + im * cos], axis=-1)
     return out.reshape(x_BLNK.shape).astype(x_BLNK.dtype)

@@ -299,7 +299,18 @@ class Programs:
         dit = self._modules(params)[:2]
         z, k_renoise, v, cache = self._first_pass(dit, ws, actions_PkA)
         parts = (self._cond_at(ws, ws.frame_index_B), ws.context_kv, self._window(ws, actions_PkA), cache)
-        return self._sample(dit, parts, z, k_renoise, ws.frame_index_B, first_v=v), cache
+        g = self.cfg.sampler.action_guidance
+        if g == 1.0:  # a Python float: the reference sampler, traced as before
+            return self._sample(dit, parts, z, k_renoise, ws.frame_index_B, first_v=v), cache
+        # SamplerConfig.action_guidance: the same passes with this step's k actions set to the no-op
+        noop = (*parts[:2], self._window(ws, jnp.zeros_like(actions_PkA)), cache)
+        i = ws.frame_index_B
+        guided = lambda v_act, v_noop: v_noop + g * (v_act - v_noop)
+        first_v = guided(v, self._velocity(dit, z, self.timesteps[0], noop, i))
+        denoise = lambda x, t: guided(self._velocity(dit, x, t, parts, i), self._velocity(dit, x, t, noop, i))
+        x0 = sampler.sample_frame(denoise, z, k_renoise, self.timesteps, self.cfg.sampler.num_train_timesteps,
+                                  unroll=self.unroll, first_v=first_v, eta=self.cfg.sampler.renoise_eta)
+        return x0, cache
 
     def _first_pass_world(self, params, ws: WorldState, actions_PkA):
         return self._first_pass(self._modules(params)[:2], ws, actions_PkA)[2:]

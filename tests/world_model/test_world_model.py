@@ -16,7 +16,7 @@ from flax import nnx
 from solaris_env.world_model import kv_cache
 from solaris_env.world_model.action_module import action_windows, left_pad_actions
 from solaris_env.world_model.conditioning import first_frame_cond
-from solaris_env.world_model.config import WorldModelConfig
+from solaris_env.world_model.config import SamplerConfig, WorldModelConfig
 from solaris_env.world_model.world_model import (Programs, WorldModel, WorldState, abstract_modules,
                                                  encoder_receptive_field, frames_to_model, steady_cond_index)
 
@@ -387,3 +387,47 @@ def test_step_params_round_trip_to_the_stacked_layout(model):
         for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b)):
             np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
     assert len(model.step_params.dit_layers) == model.config.dit.num_layers
+
+
+# ---------------------------------------------------------------------------------------------
+# Camera RoPE and action guidance through the streaming step
+# ---------------------------------------------------------------------------------------------
+
+
+def test_camera_rope_streaming_step_equals_offline_rollout():
+    """With ``DiTConfig.camera_rope`` the fused commit + denoise passes carry the accumulated camera offset in
+    the cache exactly as the pass-by-pass reference (the DiT's own decode_step)."""
+    base = WorldModelConfig.test()
+    camera = random_model(base.replace(dit=dataclasses.replace(base.dit, camera_rope=(0.05, 0.03))), seed=5)
+    got = stream_rollout(camera)
+    np.testing.assert_allclose(got["latents"], offline_rollout(camera, got)["latents"], atol=1e-5, rtol=0)
+    plain = stream_rollout(random_model(base, seed=5))  # same weights, camera RoPE off: a different rollout
+    assert np.abs(got["latents"][:, :, 1:] - plain["latents"][:, :, 1:]).max() > 1e-3
+
+
+def _guided(model, g: float):
+    return model.with_sampler(dataclasses.replace(model.config.sampler, action_guidance=g))
+
+
+def test_action_guidance_leaves_a_no_op_step_alone_and_moves_an_acting_one(model):
+    ff = first_frames(model, seed=31)
+    still = np.zeros((2, B, model.num_players, model.frames_per_step, model.action_dim), np.float32)
+    acting = random_actions(model, B, 2, seed=32)
+    rng = jax.random.key(33)
+
+    def latents(m, actions):
+        state = m.init(ff, rng)
+        for a in actions:
+            _, state = m.step(state, a)
+        return np.asarray(state.latent_BP1hwC)
+
+    guided = _guided(model, 3.0)
+    np.testing.assert_allclose(latents(guided, still), latents(model, still), atol=1e-5, rtol=0)
+    assert np.abs(latents(guided, acting) - latents(model, acting)).max() > 1e-3
+    np.testing.assert_array_equal(latents(_guided(model, 1.0), acting), latents(model, acting))
+
+
+@pytest.mark.parametrize("g", [-1.0, float("nan"), float("inf")])
+def test_action_guidance_must_be_finite_and_non_negative(g):
+    with pytest.raises(ValueError, match="action_guidance"):
+        SamplerConfig(action_guidance=g)
