@@ -526,13 +526,17 @@ def with_decoder(model: str | Path, decoder_from: str | Path, dest: str | Path) 
 
 
 def with_action_conditioning(model: str | Path, dest: str | Path, mouse_input_gain: float | None = None,
-                             adaln_actions: bool | None = None, seed: int = 0) -> Path:
+                             adaln_actions: bool | None = None, camera_warp: tuple[float, float] | None = None,
+                             seed: int = 0) -> Path:
     """Write ``model`` under another action conditioning, computing the same function (None keeps a setting):
 
     * ``mouse_input_gain``: the mouse rows of every ``mouse_mlp`` first kernel scaled by old / new gain, so
       further training moves the camera pathway ``new / old`` times faster per Adam step;
     * ``adaln_actions=True``: adds the action embedding of the adaLN path, freshly initialised with its last
-      layer at zero (``ActionConfig.adaln_actions``); turning it off is refused (it would drop trained weights).
+      layer at zero (``ActionConfig.adaln_actions``); turning it off is refused (it would drop trained weights);
+    * ``camera_warp=(h, w)``: turns on ``DiTConfig.camera_warp`` (latent pixels per degree) with the patch
+      embedding's new input rows (the warped previous latent) at zero; from a model that has it, only its scale
+      changes (the weights are kept: the function changes wherever the camera turns).
     """
     from solaris_env.world_model.action_module import rescaled_mouse_kernel
 
@@ -545,8 +549,18 @@ def with_action_conditioning(model: str | Path, dest: str | Path, mouse_input_ga
         old.action,
         mouse_input_gain=old.action.mouse_input_gain if mouse_input_gain is None else float(mouse_input_gain),
         adaln_actions=old.action.adaln_actions if adaln_actions is None else bool(adaln_actions))
-    cfg = old.replace(action=action)
+    dit = old.dit if camera_warp is None else dataclasses.replace(old.dit, camera_warp=tuple(map(float, camera_warp)))
+    if old.dit.camera_warp_enabled and not dit.camera_warp_enabled:
+        raise ValueError(f"{model} was trained with camera_warp={old.dit.camera_warp}; dropping it would drop its "
+                         "patch embedding's trained warp rows")
+    cfg = old.replace(action=action, dit=dit)
     dit_state, vae_state, encoder_state = base.params
+    if cfg.patch_in_channels != old.patch_in_channels:  # the warped previous latent's rows, at zero
+        pe = dit_state["patch_embedding"]["kernel"]
+        k = pe.get_value()
+        pad = [(0, 0)] * k.ndim
+        pad[-2] = (0, cfg.patch_in_channels - old.patch_in_channels)
+        pe.set_value(jnp.pad(k, pad))
     kernel = dit_state["blocks"]["action_model"]["mouse_mlp"]["layers"][0]["kernel"]
     kernel.set_value(rescaled_mouse_kernel(kernel.get_value(), old, action.mouse_input_gain))
     if action.adaln_actions and not old.action.adaln_actions:  # new leaves from a fresh init, the rest kept

@@ -57,6 +57,10 @@ class DiTConfig:
     # are world-aligned. About the view's pixels per degree at its centre over the token size in pixels
     # (rope.camera_positions).
     camera_rope: tuple[float, float] = (0.0, 0.0)
+    # Camera warp (ours; (0, 0) = off, the official model): the previous latent frame, its content moved by the
+    # frame's camera turn times these (height, width) latent pixels per degree (``camera.shift_latents``), joins
+    # the patch embedding's input; a turn then shows up in an input channel instead of having to be synthesised.
+    camera_warp: tuple[float, float] = (0.0, 0.0)
 
     def __post_init__(self):
         _require(self.dim % self.num_heads == 0, f"dim={self.dim} must be divisible by num_heads={self.num_heads}")
@@ -64,6 +68,10 @@ class DiTConfig:
                  f"camera_rope must be two finite numbers (height, width positions per degree), got {self.camera_rope}")
         _require(self.multiplayer == "attn" or not any(self.camera_rope),
                  f"camera_rope={self.camera_rope} needs multiplayer='attn' (one RoPE grid per player)")
+        _require(len(self.camera_warp) == 2 and all(math.isfinite(c) for c in self.camera_warp),
+                 f"camera_warp must be two finite numbers (height, width latent pixels per degree), got {self.camera_warp}")
+        _require(self.multiplayer == "attn" or not any(self.camera_warp),
+                 f"camera_warp={self.camera_warp} needs multiplayer='attn' (one view per player)")
         _require(self.head_dim % 2 == 0, f"head_dim={self.head_dim} must be even for RoPE")
         _require(self.multiplayer in MULTIPLAYER_METHODS,
                  f"multiplayer must be one of {MULTIPLAYER_METHODS}, got {self.multiplayer!r}")
@@ -77,6 +85,10 @@ class DiTConfig:
     @property
     def camera_rope_enabled(self) -> bool:
         return any(c != 0.0 for c in self.camera_rope)
+
+    @property
+    def camera_warp_enabled(self) -> bool:
+        return any(c != 0.0 for c in self.camera_warp)
 
     @property
     def rope_split(self) -> tuple[int, int, int]:
@@ -366,6 +378,12 @@ class WorldModelConfig:
         """Patch-embed input: noisy latent + mask + first-frame latent (36 for solaris)."""
         c = self.players_in_channels
         return c * (2 * self.latent_channels + self.mask_channels)
+
+    @property
+    def patch_in_channels(self) -> int:
+        """The patch embedding's input channels: ``in_channels``, plus the warped previous latent with
+        ``DiTConfig.camera_warp``."""
+        return self.in_channels + (self.out_channels if self.dit.camera_warp_enabled else 0)
 
     @property
     def out_channels(self) -> int:

@@ -36,6 +36,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import nnx
 
+from solaris_env.world_model import camera as camera_lib
 from solaris_env.world_model import kv_cache, masks, rope
 from solaris_env.world_model.action_module import ActionModule, action_windows, padded_action_length
 from solaris_env.world_model.attention import (RMSNorm, attention, attention_heads_major, dense, layer_norm,
@@ -177,6 +178,11 @@ def _teacher_forcing_attention(q_BLNK, k_BLNK, v_BLNK, num_frames: int, window: 
     mask = jnp.repeat(jnp.repeat(jnp.asarray(band_mask), block, axis=1), block, axis=2)[:, None]  # (F, 1, 2blk, S)
     y = jax.vmap(lambda q_, k_, v_: attention(q_, k_, v_, mask, impl))(q, banded(k_BLNK), banded(v_BLNK))
     return y.reshape(b, f, 2, block, n, kd).transpose(0, 2, 1, 3, 4, 5).reshape(q_BLNK.shape)
+
+
+def _previous_frames(x_BPFhwC: jax.Array) -> jax.Array:
+    """Each frame's previous frame along F, zeros before the first (the camera warp's input)."""
+    return jnp.concatenate([jnp.zeros_like(x_BPFhwC[:, :, :1]), x_BPFhwC[:, :, :-1]], axis=2)
 
 
 class _Conditioning(NamedTuple):
@@ -403,8 +409,8 @@ class DiTBlock(nnx.Module):
             layer < self.num_action_blocks, self.action_model, run_actions, lambda x, mc, kc: (x, mc, kc),
             x_BPFLD, cache.mouse, cache.keyboard,
             select=_layer_of(layer) if stacked_actions else None)
-        new_cache = kv_cache.DiTCache(self_attn=self_cache, mouse=mouse_cache, keyboard=keyboard_cache,
-                                      camera=cache.camera)  # the caller writes the new camera offset
+        # camera RoPE offset / camera-warp latent pass through: the caller writes the new ones
+        new_cache = cache.replace(self_attn=self_cache, mouse=mouse_cache, keyboard=keyboard_cache)
         return self._ffn_residual(x_BPFLD, mods), new_cache
 
 
@@ -470,7 +476,7 @@ class WorldDiT(nnx.Module):
             raise ValueError(f"temporal patch size must be 1 (one latent frame per token frame), got {d.patch_size}")
         kw = dict(rngs=rngs, **_dtypes(cfg))
         self.cfg = cfg
-        self.patch_embedding = nnx.Conv(cfg.in_channels, d.dim, kernel_size=d.patch_size, strides=d.patch_size,
+        self.patch_embedding = nnx.Conv(cfg.patch_in_channels, d.dim, kernel_size=d.patch_size, strides=d.patch_size,
                                         padding="VALID", kernel_init=nnx.initializers.xavier_uniform(), **kw)
         normal = nnx.initializers.normal(0.02)
         self.time_embedding = nnx.Sequential(
@@ -495,7 +501,8 @@ class WorldDiT(nnx.Module):
         mouse_w = self._windows(mouse, num_frames)
         return self._forward_sequence(
             x, t, cond, context, mouse_w, self._windows(keyboard, num_frames),
-            rope.frame_positions(num_frames), frame_mask=None, kv_stop_F=None, camera=self._camera(None, mouse_w))
+            rope.frame_positions(num_frames), frame_mask=None, kv_stop_F=None, camera=self._camera(None, mouse_w),
+            prev=_previous_frames(x))
 
     def forward_causal(self, x, t, cond, context, mouse, keyboard) -> jax.Array:
         """Block-causal sliding window over frames (diffusion forcing: t varies per frame). Returns v like x."""
@@ -504,7 +511,7 @@ class WorldDiT(nnx.Module):
         return self._forward_sequence(
             x, t, cond, context, mouse_w, self._windows(keyboard, num_frames),
             rope.frame_positions(num_frames), masks.causal_window_frame_mask(num_frames, self.cfg.dit.window),
-            kv_stop_F=None, camera=self._camera(None, mouse_w))
+            kv_stop_F=None, camera=self._camera(None, mouse_w), prev=_previous_frames(x))
 
     def forward_teacher_forcing(self, clean, noisy, t_clean, t_noisy, cond, context, mouse, keyboard, *,
                                 kv_grad: bool = True, remat: bool = True) -> jax.Array:
@@ -531,7 +538,7 @@ class WorldDiT(nnx.Module):
             masks.teacher_forcing_frame_mask(num_frames, self.cfg.dit.window), kv_stop_F,
             attend=functools.partial(_teacher_forcing_attention, num_frames=num_frames, window=self.cfg.dit.window,
                                      block=noisy.shape[1] * math.prod(self._grid()), impl=self.cfg.dit.attention_impl),
-            remat=remat, camera=None if camera is None else twice(camera))
+            remat=remat, camera=None if camera is None else twice(camera), prev=twice(_previous_frames(clean)))
         return v[:, :, num_frames:]
 
     def decode_step(self, x, t, cond, context, mouse, keyboard, cache: kv_cache.DiTCache,
@@ -545,13 +552,14 @@ class WorldDiT(nnx.Module):
         passes against the same context uses ``decode_step_cached`` with ``context_kv(context)``.
         """
         self._validate(x, t, cond, context, mouse, keyboard, expect_frames=1)
-        cond_in, tokens, e = self._prepare(x, t, cond, context, mouse[:, :, None], keyboard[:, :, None])
+        cond_in, tokens, e = self._prepare(x, t, cond, context, mouse[:, :, None], keyboard[:, :, None],
+                                           self._cached_previous(x, cache))
         def project(block, _):
             k, v = block.cross_attn.kv(_fold(cond_in.context_BPMD))
             return k.transpose(0, 2, 1, 3), v.transpose(0, 2, 1, 3)
 
         return self._decode_layers(tokens, e, cond_in, cache, start_frame, project, None, keep_cache=True,
-                                   unroll=False)
+                                   unroll=False, x_in=x)
 
     def context_kv(self, context, layers: "tuple[DiTBlock, ...] | None" = None) -> ContextKV:
         """The cross-attention keys/values of every layer for ``context`` (B, P, M, context_width): what
@@ -588,17 +596,17 @@ class WorldDiT(nnx.Module):
         their own buffers (a scan over the stacked weights copies each layer's slice, ~its whole size,
         in every pass) and the action module runs in the first ``num_action_blocks`` layers without a
         ``lax.cond``. Same result up to float rounding; what the streaming ``WorldModel`` uses."""
-        cond_in, tokens, e = self._prepare_cached(x, t, cond, context_kv, mouse, keyboard)
+        cond_in, tokens, e = self._prepare_cached(x, t, cond, context_kv, mouse, keyboard, cache=cache)
         return self._decode_layers(tokens, e, cond_in, cache, start_frame, self._fold_kv,
                                    (context_kv.k_LBPNMK, context_kv.v_LBPNMK), keep_cache=True, unroll=unroll,
-                                   layers=layers)
+                                   layers=layers, x_in=x)
 
     def denoise_step_cached(self, x, t, cond, context_kv: ContextKV, mouse, keyboard, cache: kv_cache.DiTCache,
                             start_frame: int | jax.Array, *, unroll: bool = False,
                             layers: "tuple[DiTBlock, ...] | None" = None) -> jax.Array:
         """The velocity of ``decode_step_cached`` alone (a denoising pass: the cache update is discarded,
         so it is never built)."""
-        cond_in, tokens, e = self._prepare_cached(x, t, cond, context_kv, mouse, keyboard)
+        cond_in, tokens, e = self._prepare_cached(x, t, cond, context_kv, mouse, keyboard, cache=cache)
         return self._decode_layers(tokens, e, cond_in, cache, start_frame, self._fold_kv,
                                    (context_kv.k_LBPNMK, context_kv.v_LBPNMK), keep_cache=False, unroll=unroll,
                                    layers=layers)[0]
@@ -617,10 +625,10 @@ class WorldDiT(nnx.Module):
         denoising pass after that commit. Returns ``(v (B, P, 1, h, w, C) of frame 1, the cache with
         frame 0 written)``: equal to the two passes up to float rounding, with one pass's fixed costs.
         """
-        cond_in, tokens, e = self._prepare_cached(x, t, cond, context_kv, mouse, keyboard, num_frames=2)
+        cond_in, tokens, e = self._prepare_cached(x, t, cond, context_kv, mouse, keyboard, num_frames=2, cache=cache)
         v, new_cache = self._decode_layers(tokens, e, cond_in, cache, start_frame, self._fold_kv,
                                            (context_kv.k_LBPNMK, context_kv.v_LBPNMK), keep_cache=True,
-                                           unroll=unroll, layers=layers, keep=1)
+                                           unroll=unroll, layers=layers, keep=1, x_in=x)
         return v[:, :, 1:], new_cache
 
     # -- internals -----------------------------------------------------------------------------------
@@ -628,7 +636,7 @@ class WorldDiT(nnx.Module):
     def _fold_kv(block, kv):
         return _fold(kv[0]), _fold(kv[1])
 
-    def _prepare_cached(self, x, t, cond, context_kv: ContextKV, mouse, keyboard, num_frames: int = 1):
+    def _prepare_cached(self, x, t, cond, context_kv: ContextKV, mouse, keyboard, num_frames: int = 1, cache=None):
         """Shape checks and ``_prepare`` for the ``*_cached`` entry points (no context projection);
         ``mouse``/``keyboard`` are the (B, P, k * (F - 1) + action_window, A) action sequence of the F
         frames (for F = 1: the frame's window)."""
@@ -645,11 +653,11 @@ class WorldDiT(nnx.Module):
         self._validate(x, t, cond, context_shape, mouse, keyboard, expect_frames=num_frames)
         k, w = c.frames_per_step, c.action_window
         windows = lambda a: jnp.stack([a[:, :, k * f:k * f + w] for f in range(num_frames)], axis=2)
-        return self._prepare(x, t, cond, None, windows(mouse), windows(keyboard))
+        return self._prepare(x, t, cond, None, windows(mouse), windows(keyboard), self._cached_previous(x, cache))
 
     def _decode_layers(self, tokens, e, cond_in: _Conditioning, cache: kv_cache.DiTCache, start_frame,
                        cross_kv_of, per_layer_kv, keep_cache: bool, unroll: bool, layers=None,
-                       keep: int | None = None):
+                       keep: int | None = None, x_in=None):
         """The layer scan of a decode step; ``cross_kv_of(block, per_layer_kv[layer])`` gives the layer's
         heads-major cross-attention (k, v), each (B*P, N, M, K). Without ``keep_cache`` the updated
         caches are not outputs of the scan (so XLA never builds them) and None is returned for them."""
@@ -683,9 +691,9 @@ class WorldDiT(nnx.Module):
             if not keep_cache:
                 new_caches = None
             elif not per_layer:
-                new_caches = self._with_camera(kv_cache.stack(tuple(new_caches)), camera, keep)
+                new_caches = self._with_camera(kv_cache.stack(tuple(new_caches)), camera, x_in, keep)
             else:
-                new_caches = tuple(self._with_camera(n, camera, keep) for n in new_caches)
+                new_caches = tuple(self._with_camera(n, camera, x_in, keep) for n in new_caches)
             return self._unpatchify(self.head(tokens, e)), new_caches
 
         # Per-layer caches and context K/V are read with a dynamic index (and the caches written back
@@ -708,7 +716,7 @@ class WorldDiT(nnx.Module):
         (tokens, new_caches), _ = jax.lax.scan(body, (tokens, cache if keep_cache else None),
                                                (rest_state, jnp.arange(d.num_layers)), unroll=unroll)
         if keep_cache:
-            new_caches = self._with_camera(new_caches, camera, keep)
+            new_caches = self._with_camera(new_caches, camera, x_in, keep)
         return self._unpatchify(self.head(tokens, e)), new_caches
 
     def _camera(self, base_BP2, mouse_BPFWA):
@@ -720,13 +728,35 @@ class WorldDiT(nnx.Module):
         inc = rope.camera_increments(mouse_BPFWA, self.cfg.frames_per_step, d.camera_rope, CAMERA_SCALE_DEG)
         return rope.camera_positions(base_BP2, inc)
 
-    @staticmethod
-    def _with_camera(cache: kv_cache.DiTCache, camera_BPF2, keep: int | None) -> kv_cache.DiTCache:
-        """The cache with the offset of its newest kept frame (``keep`` new frames, default all)."""
-        if camera_BPF2 is None:
-            return cache
-        last = camera_BPF2[:, :, (camera_BPF2.shape[2] if keep is None else keep) - 1]
-        return cache.replace(camera=jnp.broadcast_to(last, cache.camera.shape).astype(cache.camera.dtype))
+    def _with_camera(self, cache: kv_cache.DiTCache, camera_BPF2, x_in, keep: int | None) -> kv_cache.DiTCache:
+        """The cache with the camera RoPE offset and (camera warp) the latent of its newest kept frame (``keep``
+        new frames, default all)."""
+        if camera_BPF2 is not None:
+            last = camera_BPF2[:, :, (camera_BPF2.shape[2] if keep is None else keep) - 1]
+            cache = cache.replace(camera=jnp.broadcast_to(last, cache.camera.shape).astype(cache.camera.dtype))
+        if self.cfg.dit.camera_warp_enabled:
+            last = x_in[:, :, (x_in.shape[2] if keep is None else keep) - 1]
+            cache = cache.replace(latent=jnp.broadcast_to(last, cache.latent.shape).astype(cache.latent.dtype))
+        return cache
+
+    def _warped(self, prev_BPFhwC, mouse_BPFWA) -> jax.Array:
+        """Each frame's previous latent, its content moved by the frame's camera turn (``camera_warp``)."""
+        if prev_BPFhwC is None:
+            raise ValueError("camera_warp is on but no previous latents were given")
+        turns = camera_lib.frame_turns(mouse_BPFWA, self.cfg.frames_per_step)
+        shift = camera_lib.content_shift(turns, self.cfg.dit.camera_warp)  # (B, P, F, 2)
+        flat = prev_BPFhwC.reshape((-1,) + prev_BPFhwC.shape[3:]).astype(jnp.float32)
+        return camera_lib.shift_latents(flat, shift.reshape(-1, 2)).reshape(prev_BPFhwC.shape)
+
+    def _cached_previous(self, x, cache):
+        """Previous latents of the F new frames of a cached pass: the cache's last frame, then x's own."""
+        if not self.cfg.dit.camera_warp_enabled:
+            return None
+        latent = None if cache is None else (cache[0] if isinstance(cache, tuple) else cache).latent
+        if latent is None:
+            raise ValueError("camera_warp is on but the cache has no latent (kv_cache.init_cache)")
+        latent = latent if isinstance(cache, tuple) else latent[0]
+        return jnp.concatenate([latent[:, :, None].astype(x.dtype), x[:, :, :-1]], axis=2)
 
     def _grid(self) -> tuple[int, int]:
         _, ph, pw = self.cfg.dit.patch_size
@@ -758,12 +788,16 @@ class WorldDiT(nnx.Module):
                 raise ValueError(f"{name} has shape {got}; expected {want} (F={f}, T_pad = k*(F-1)+window = {t_pad})")
         return f
 
-    def _prepare(self, x, t, cond, context, mouse_BPFWA, keyboard_BPFWA):
+    def _prepare(self, x, t, cond, context, mouse_BPFWA, keyboard_BPFWA, prev=None):
         """Patchify, embed time/context/players -> (conditioning, tokens_BPFLD, e_BPFD); ``context=None``
-        leaves the projected context out (the caller brings per-layer cross-attention K/V)."""
+        leaves the projected context out (the caller brings per-layer cross-attention K/V). ``prev``: each
+        frame's previous latent (like x), read with the camera warp only."""
         b, p, f = x.shape[:3]
         dtype = jnp.dtype(self.cfg.dit.dtype)
-        xc = jnp.concatenate([x, cond], axis=-1).astype(dtype)  # channel order: [x, mask, first-frame latent]
+        parts = [x, cond]  # channel order: [x, mask, first-frame latent (, warped previous latent)]
+        if self.cfg.dit.camera_warp_enabled:
+            parts.append(self._warped(prev, mouse_BPFWA))
+        xc = jnp.concatenate(parts, axis=-1).astype(dtype)
         tokens = self.patch_embedding(xc.reshape((b * p,) + xc.shape[2:]))  # (B*P, F, h, w, D)
         tokens = tokens.reshape(b, p, f, -1, tokens.shape[-1])
         e = self.time_embedding(sinusoidal_embedding(t, self.cfg.dit.freq_dim).astype(dtype))  # (B, P, F, D)
@@ -792,8 +826,8 @@ class WorldDiT(nnx.Module):
             kv_stop_F, kv_stop_L)
 
     def _forward_sequence(self, x, t, cond, context, mouse_BPFWA, keyboard_BPFWA, frame_pos_F, frame_mask,
-                          kv_stop_F, attend=None, remat: bool = False, camera=None) -> jax.Array:
-        cond_in, tokens, e = self._prepare(x, t, cond, context, mouse_BPFWA, keyboard_BPFWA)
+                          kv_stop_F, attend=None, remat: bool = False, camera=None, prev=None) -> jax.Array:
+        cond_in, tokens, e = self._prepare(x, t, cond, context, mouse_BPFWA, keyboard_BPFWA, prev)
         plan = self._sequence_plan(frame_pos_F, frame_mask, kv_stop_F, x.shape[1], camera)
         if attend is not None:  # the self-attention brings its own mask; no dense token mask
             plan = plan._replace(token_mask=None, attend=attend)

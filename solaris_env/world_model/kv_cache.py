@@ -21,7 +21,8 @@ Three caches per DiT (``DiTCache``), each with one entry per layer:
 | keyboard | (layers, B * P, Na, window, Ka), heads-major | one per frame |
 
 With camera RoPE (``DiTConfig.camera_rope``) the cache also carries ``camera``, the accumulated RoPE offset
-of the last cached frame, so the next frame's offset continues from it.
+of the last cached frame, so the next frame's offset continues from it; with the camera warp
+(``DiTConfig.camera_warp``) ``latent``, the last cached frame's latent, which the next frame sees shifted.
 
 Mouse/keyboard caches exist for every layer (uniform scan) but only the first ``num_action_blocks``
 layers touch them; the others stay empty.
@@ -67,6 +68,9 @@ class DiTCache:
     # camera RoPE only (``DiTConfig.camera_rope``): (..., B, P, 2) accumulated (height, width) position offset of
     # the last cached frame (every layer holds the same value); None otherwise
     camera: jax.Array | None = None
+    # camera warp only (``DiTConfig.camera_warp``): (..., B, P, h, w, C) the last cached frame's latent (as the
+    # commit pass got it), the next frame's previous latent; None otherwise
+    latent: jax.Array | None = None
 
 
 def empty_cache(lead_shape: tuple[int, ...], batch: int, slots: int, heads: int, head_dim: int,
@@ -95,6 +99,8 @@ def init_cache(cfg: WorldModelConfig, batch: int, dtype=None) -> DiTCache:
         keyboard=empty_cache(layers, batch * players, cfg.dit.window, a.num_heads, a.keyboard_head_dim, dtype,
                              layout="BNSK"),
         camera=jnp.zeros(layers + (batch, players, 2), jnp.float32) if cfg.dit.camera_rope_enabled else None,
+        latent=jnp.zeros(layers + (batch, players, cfg.latent_height, cfg.latent_width, cfg.out_channels), jnp.float32)
+        if cfg.dit.camera_warp_enabled else None,
     )
 
 

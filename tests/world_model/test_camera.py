@@ -1,5 +1,6 @@
-"""Camera RoPE (``DiTConfig.camera_rope``): the pure offset functions, and every DiT entry point agreeing
-with it on (cached decode == teacher forcing == causal), the cache carrying the accumulated offset."""
+"""The camera conditionings of ours: camera RoPE (``DiTConfig.camera_rope``) and the camera warp
+(``DiTConfig.camera_warp``): the pure functions, and every DiT entry point agreeing with each on (cached decode ==
+teacher forcing == causal), the cache carrying the accumulated offset / the previous latent."""
 
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ import pytest
 from flax import nnx
 
 from solaris_env.spaces import CAMERA_SCALE_DEG
+from solaris_env.world_model import camera as camera_lib
 from solaris_env.world_model import kv_cache, rope
 from solaris_env.world_model.action_module import action_windows, window_at
 from solaris_env.world_model.config import DiTConfig, WorldModelConfig
@@ -72,7 +74,8 @@ def test_angles_offset_only_the_height_and_width_pairs_of_their_player():
     np.testing.assert_allclose(moved[:, 7:], np.broadcast_to(-1.5 * inv, (gh * gw, 3)), rtol=1e-6)
     # the same offset on the base grid = that many positions along the axis (RoPE of a fractional position)
     base = rope.rope_3d_angles(split, 10000.0, 1, gh, gw, 1)
-    shifted = np.asarray(base) + np.asarray(rope.camera_rope_angles(split, 10000.0, jnp.full((1, 1, 1, 2), 1.0), gh, gw))[0]
+    one = rope.camera_rope_angles(split, 10000.0, jnp.full((1, 1, 1, 2), 1.0), gh, gw)
+    shifted = np.asarray(base) + np.asarray(one)[0]
     np.testing.assert_allclose(shifted[0], np.asarray(base)[3], rtol=1e-6)  # token (0, 0) moved to (1, 1)
 
 
@@ -159,3 +162,84 @@ def test_a_common_offset_of_every_frame_cancels(camera_model):
         return jnp.concatenate(outs, axis=2)
 
     np.testing.assert_allclose(run([0.0, 0.0]), run([7.25, -3.5]), atol=TOL, rtol=0)
+
+
+# ---------------------------------------------------------------------------------------------
+# Camera warp
+# ---------------------------------------------------------------------------------------------
+
+WARP = (0.1, 0.06)  # (height, width) latent pixels per degree
+
+
+def _warp_cfg() -> WorldModelConfig:
+    cfg = _cfg(players=2)
+    return cfg.replace(dit=dataclasses.replace(cfg.dit, camera_warp=WARP))
+
+
+def test_frame_turns_and_content_shift_signs():
+    mouse = np.zeros((1, 1, 2, 12, 2), np.float32)
+    mouse[0, 0, 1, -4:, 0] = 0.5  # yaw left, 4 ticks of 7.5 degrees
+    mouse[0, 0, 1, -1, 1] = 0.2  # look up 3 degrees
+    mouse[0, 0, 1, 0, 0] = 9.0  # an older tick: not this frame's turn
+    turns = camera_lib.frame_turns(jnp.asarray(mouse), 4)
+    np.testing.assert_allclose(turns[0, 0], [[0, 0], [30.0, 3.0]], rtol=1e-6)
+    shift = camera_lib.content_shift(turns, WARP)
+    np.testing.assert_allclose(shift[0, 0, 1], [3.0 * WARP[0], 30.0 * WARP[1]], rtol=1e-6)  # down, right
+
+
+def test_shift_latents_moves_content_exactly_by_whole_pixels_and_interpolates_between():
+    x = jax.random.normal(jax.random.key(0), (2, 5, 6, 3))
+    out = camera_lib.shift_latents(x, jnp.asarray([[0.0, 2.0], [-1.0, 0.0]]))
+    np.testing.assert_allclose(out[0, :, 2:], x[0, :, :-2], atol=1e-6)  # content moved right by 2
+    np.testing.assert_allclose(out[0, :, :2], np.repeat(x[0, :, :1], 2, axis=1), atol=1e-6)  # edge repeated
+    np.testing.assert_allclose(out[1, :-1], x[1, 1:], atol=1e-6)  # moved up by 1
+    half = camera_lib.shift_latents(x, jnp.asarray([[0.0, 0.5], [0.0, 0.0]]))
+    np.testing.assert_allclose(half[0, :, 1:], 0.5 * (x[0, :, 1:] + x[0, :, :-1]), atol=1e-6)
+    np.testing.assert_allclose(half[1], x[1], atol=1e-6)
+    with pytest.raises(ValueError, match="shift_latents"):
+        camera_lib.shift_latents(x, jnp.zeros((2, 3)))
+
+
+def test_camera_warp_config_and_cache():
+    with pytest.raises(ValueError, match="camera_warp"):
+        DiTConfig(camera_warp=(float("nan"), 0.0))
+    with pytest.raises(ValueError, match="camera_warp"):
+        DiTConfig(multiplayer="concat", camera_warp=(0.1, 0.1))
+    cfg = _warp_cfg()
+    assert cfg.patch_in_channels == cfg.in_channels + cfg.out_channels
+    assert WorldModelConfig.test().patch_in_channels == WorldModelConfig.test().in_channels
+    cache = kv_cache.init_cache(cfg, 3)
+    assert cache.latent.shape == (cfg.dit.num_layers, 3, 2, cfg.latent_height, cfg.latent_width, cfg.out_channels)
+    assert kv_cache.init_cache(WorldModelConfig.test(), 1).latent is None
+
+
+@pytest.fixture(scope="module")
+def warp_model():
+    cfg = _warp_cfg()
+    inp = _inputs(cfg, seed=31)
+    inp["mouse"] = inp["mouse"] * 3.0
+    return cfg, _build(cfg, seed=31), inp
+
+
+def test_warp_cached_rollout_equals_teacher_forcing_and_causal(warp_model):
+    cfg, model, inp = warp_model
+    out = _rollout(cfg, model, inp)
+    np.testing.assert_allclose(out["denoise"], _teacher_forcing(model, inp), atol=TOL, rtol=0)
+    v_causal = causal_fn(model, *_seq_args(inp, "clean", jnp.zeros_like(inp["t"])))
+    np.testing.assert_allclose(out["commit"], v_causal, atol=TOL, rtol=0)
+    last = inp["clean"][:, :, -1]
+    np.testing.assert_allclose(out["cache"].latent, jnp.broadcast_to(last, out["cache"].latent.shape), atol=1e-6)
+
+
+def test_warp_input_reaches_the_next_frame_only(warp_model):
+    """Changing frame i's latent changes frame i + 1's output through the warp even with the attention unable
+    to see it (a bidirectional pass has no mask; compare causal outputs of frame i + 1 with and without)."""
+    cfg, model, inp = warp_model
+    i = 1
+    x = inp["clean"]
+    moved = x.at[:, :, i].add(1.0)
+    t = jnp.zeros_like(inp["t"])
+    base = causal_fn(model, x, t, inp["cond"], inp["context"], inp["mouse"], inp["keyboard"])
+    other = causal_fn(model, moved, t, inp["cond"], inp["context"], inp["mouse"], inp["keyboard"])
+    delta = jnp.abs(other - base).max(axis=(0, 1, 3, 4, 5))
+    assert float(delta[:i].max()) == 0.0 and float(delta[i + 1]) > 1e-4, delta
