@@ -15,8 +15,9 @@ shift-blind loss by reading the mouse.
 Scored on a fixed held-out batch with fixed timesteps and noise: the flow-matching loss with the true mouse,
 with it negated (the opposite shift), and zeroed; ``action_gain`` = loss(negated) / loss(true) - 1 (0 = the
 model ignores the mouse). Variants are ``ActionConfig`` settings: ``official`` (the reference design),
-``gain10`` (``mouse_input_gain`` 10), ``adaln`` (``adaln_actions``), and ``camera_rope`` (the official action
-module with ``DiTConfig.camera_rope`` set to the synthetic shift: one latent pixel per ``k * yaw`` units). Writes
+``gain10`` (``mouse_input_gain`` 10), ``adaln`` (``adaln_actions``), and, with the official action module,
+``camera_rope`` / ``camera_warp`` (``DiTConfig.camera_rope`` / ``camera_warp`` set to the synthetic shift: one
+latent pixel per ``k * yaw`` units). Writes
 ``benchmarks/results/action_learnability.json``.
 """
 
@@ -35,8 +36,10 @@ RESULTS = Path(__file__).parent / "results" / "action_learnability.json"
 VARIANTS = {"official": {"mouse_input_gain": 1.0, "adaln_actions": False},
             "gain10": {"mouse_input_gain": 10.0, "adaln_actions": False},
             "adaln": {"mouse_input_gain": 1.0, "adaln_actions": True},
-            "camera_rope": {"mouse_input_gain": 1.0, "adaln_actions": False}}
-CAMERA_ROPE_VARIANTS = ("camera_rope",)  # the others run with camera RoPE off, named explicitly too
+            "camera_rope": {"mouse_input_gain": 1.0, "adaln_actions": False},
+            "camera_warp": {"mouse_input_gain": 1.0, "adaln_actions": False}}
+CAMERA_ROPE_VARIANTS = ("camera_rope",)  # the others run with camera RoPE / warp off, named explicitly too
+CAMERA_WARP_VARIANTS = ("camera_warp",)
 
 
 def matched_camera_rope(cfg, yaw: float) -> tuple[float, float]:
@@ -46,6 +49,13 @@ def matched_camera_rope(cfg, yaw: float) -> tuple[float, float]:
 
     degrees_per_pixel = cfg.frames_per_step * yaw * CAMERA_SCALE_DEG
     return (0.0, 1.0 / (cfg.dit.patch_size[2] * degrees_per_pixel))
+
+
+def matched_camera_warp(cfg, yaw: float) -> tuple[float, float]:
+    """``DiTConfig.camera_warp`` (latent pixels per degree) that moves the previous latent as the synthetic shift."""
+    from solaris_env.spaces import CAMERA_SCALE_DEG
+
+    return (0.0, 1.0 / (cfg.frames_per_step * yaw * CAMERA_SCALE_DEG))
 
 
 def smooth_fields(rng: np.random.Generator, n: int, h: int, w: int, c: int, sigma: float) -> np.ndarray:
@@ -105,8 +115,9 @@ def run_variant(name: str, preset: str, steps: int, batch: int, latent_frames: i
 
     base = make_preset(preset)
     camera = matched_camera_rope(base, yaw) if name in CAMERA_ROPE_VARIANTS else (0.0, 0.0)
+    warp = matched_camera_warp(base, yaw) if name in CAMERA_WARP_VARIANTS else (0.0, 0.0)
     cfg = base.replace(action=dataclasses.replace(base.action, **VARIANTS[name]),
-                       dit=dataclasses.replace(base.dit, camera_rope=camera))
+                       dit=dataclasses.replace(base.dit, camera_rope=camera, camera_warp=warp))
     dit = WorldDiT(cfg, rngs=nnx.Rngs(seed))
     tx = make_optimizer(lr)
     graphdef, state = TrainState.create(dit, tx, rng=seed)
@@ -140,7 +151,8 @@ def run_variant(name: str, preset: str, steps: int, batch: int, latent_frames: i
             curve.append(row)
             print(f"{name:>8s} step {step:5d}  loss true {row['loss_true']:.4f}  negated {row['loss_negated']:.4f}  "
                   f"zeroed {row['loss_zeroed']:.4f}  action_gain {row['action_gain']:+.3f}", flush=True)
-    return {"variant": name, "action_config": VARIANTS[name], "camera_rope": list(camera), "curve": curve,
+    return {"variant": name, "action_config": VARIANTS[name], "camera_rope": list(camera), "camera_warp": list(warp),
+            "curve": curve,
             "final": curve[-1],
             "steps_per_s": steps / (time.perf_counter() - t0)}
 

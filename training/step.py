@@ -17,6 +17,8 @@ run is deterministic given the seed and resumes exactly from a checkpointed stat
 
 from __future__ import annotations
 
+import functools
+
 import math
 from collections.abc import Callable
 from typing import Any
@@ -164,7 +166,10 @@ def make_loss_fn(graphdef: nnx.GraphDef, entry_point_name: str) -> Callable:
 
     def loss_fn(params, rest, batch, t_BPF, noise):
         dit = nnx.merge(graphdef, params, rest)
-        return flow_matching_loss(getattr(dit, entry_point_name), *(batch[k] for k in BATCH_KEYS), t_BPF, noise)
+        forward = getattr(dit, entry_point_name)
+        if dit.cfg.dit.camera_warp_enabled:  # the warp reads the clean previous frame, as a rollout commits it
+            forward = functools.partial(forward, clean=batch["x0"])
+        return flow_matching_loss(forward, *(batch[k] for k in BATCH_KEYS), t_BPF, noise)
 
     return loss_fn
 

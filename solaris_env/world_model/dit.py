@@ -495,23 +495,26 @@ class WorldDiT(nnx.Module):
         self.head = Head(cfg, rngs=rngs)
 
     # -- entry points ------------------------------------------------------------------------------
-    def forward_bidirectional(self, x, t, cond, context, mouse, keyboard) -> jax.Array:
-        """Full attention over all frames (stages 1-2, the DMD teacher). Returns v like x."""
+    def forward_bidirectional(self, x, t, cond, context, mouse, keyboard, clean=None) -> jax.Array:
+        """Full attention over all frames (stages 1-2, the DMD teacher). Returns v like x. ``clean``: the clean
+        latents of ``x`` (training), whose previous frames the camera warp reads (a rollout's committed frames are
+        clean); default ``x`` itself."""
         num_frames = self._validate(x, t, cond, context, mouse, keyboard)
         mouse_w = self._windows(mouse, num_frames)
         return self._forward_sequence(
             x, t, cond, context, mouse_w, self._windows(keyboard, num_frames),
             rope.frame_positions(num_frames), frame_mask=None, kv_stop_F=None, camera=self._camera(None, mouse_w),
-            prev=_previous_frames(x))
+            prev=_previous_frames(x if clean is None else clean))
 
-    def forward_causal(self, x, t, cond, context, mouse, keyboard) -> jax.Array:
-        """Block-causal sliding window over frames (diffusion forcing: t varies per frame). Returns v like x."""
+    def forward_causal(self, x, t, cond, context, mouse, keyboard, clean=None) -> jax.Array:
+        """Block-causal sliding window over frames (diffusion forcing: t varies per frame). Returns v like x.
+        ``clean`` as ``forward_bidirectional``."""
         num_frames = self._validate(x, t, cond, context, mouse, keyboard)
         mouse_w = self._windows(mouse, num_frames)
         return self._forward_sequence(
             x, t, cond, context, mouse_w, self._windows(keyboard, num_frames),
             rope.frame_positions(num_frames), masks.causal_window_frame_mask(num_frames, self.cfg.dit.window),
-            kv_stop_F=None, camera=self._camera(None, mouse_w), prev=_previous_frames(x))
+            kv_stop_F=None, camera=self._camera(None, mouse_w), prev=_previous_frames(x if clean is None else clean))
 
     def forward_teacher_forcing(self, clean, noisy, t_clean, t_noisy, cond, context, mouse, keyboard, *,
                                 kv_grad: bool = True, remat: bool = True) -> jax.Array:

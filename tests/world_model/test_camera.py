@@ -243,3 +243,14 @@ def test_warp_input_reaches_the_next_frame_only(warp_model):
     other = causal_fn(model, moved, t, inp["cond"], inp["context"], inp["mouse"], inp["keyboard"])
     delta = jnp.abs(other - base).max(axis=(0, 1, 3, 4, 5))
     assert float(delta[:i].max()) == 0.0 and float(delta[i + 1]) > 1e-4, delta
+
+
+def test_warp_reads_the_given_clean_latents(warp_model):
+    """Training hands the clean latents (what a rollout commits) to the warp; by default it reads x itself."""
+    cfg, model, inp = warp_model
+    args = _seq_args(inp)
+    fn = nnx.jit(lambda m, *a, clean=None: m.forward_causal(*a, clean=clean))
+    base = fn(model, *args)
+    np.testing.assert_array_equal(fn(model, *args, clean=inp["noisy"]), base)
+    delta = jnp.abs(fn(model, *args, clean=inp["clean"]) - base).max(axis=(0, 1, 3, 4, 5))
+    assert float(delta[0]) == 0.0 and float(delta[1:].min()) > 1e-4, delta  # frame 0 has no previous frame
