@@ -113,20 +113,31 @@ def test_off_by_default_and_the_cache_has_no_camera():
 # ---------------------------------------------------------------------------------------------
 
 
-@pytest.fixture(scope="module")
-def camera_model():
-    cfg = _camera_cfg()
-    inp = _inputs(cfg, seed=21)
-    inp["mouse"] = inp["mouse"] * 3.0  # turns of up to ~135 degrees per latent frame: offsets of several tokens
-    return cfg, _build(cfg, seed=21), inp
+def _turning(cfg: WorldModelConfig, seed: int):
+    """(cfg, random-weight model, inputs) with turns of up to ~135 degrees per latent frame (offsets and shifts
+    of several tokens)."""
+    inp = _inputs(cfg, seed=seed)
+    inp["mouse"] = inp["mouse"] * 3.0
+    return cfg, _build(cfg, seed=seed), inp
 
 
-def test_cached_rollout_equals_teacher_forcing_and_causal(camera_model):
-    cfg, model, inp = camera_model
+def _cached_rollout_agrees(cfg, model, inp) -> dict:
+    """The cached rollout (denoise / commit passes) == teacher forcing == the causal forward; returns it."""
     out = _rollout(cfg, model, inp)
     np.testing.assert_allclose(out["denoise"], _teacher_forcing(model, inp), atol=TOL, rtol=0)
     v_causal = causal_fn(model, *_seq_args(inp, "clean", jnp.zeros_like(inp["t"])))
     np.testing.assert_allclose(out["commit"], v_causal, atol=TOL, rtol=0)
+    return out
+
+
+@pytest.fixture(scope="module")
+def camera_model():
+    return _turning(_camera_cfg(), seed=21)
+
+
+def test_cached_rollout_equals_teacher_forcing_and_causal(camera_model):
+    cfg, model, inp = camera_model
+    out = _cached_rollout_agrees(cfg, model, inp)
     # the cache ends at the last frame's accumulated offset, in every layer
     windows = action_windows(inp["mouse"], cfg, FRAMES)
     want = rope.camera_positions(None, rope.camera_increments(windows, cfg.frames_per_step, cfg.dit.camera_rope,
@@ -215,18 +226,12 @@ def test_camera_warp_config_and_cache():
 
 @pytest.fixture(scope="module")
 def warp_model():
-    cfg = _warp_cfg()
-    inp = _inputs(cfg, seed=31)
-    inp["mouse"] = inp["mouse"] * 3.0
-    return cfg, _build(cfg, seed=31), inp
+    return _turning(_warp_cfg(), seed=31)
 
 
 def test_warp_cached_rollout_equals_teacher_forcing_and_causal(warp_model):
     cfg, model, inp = warp_model
-    out = _rollout(cfg, model, inp)
-    np.testing.assert_allclose(out["denoise"], _teacher_forcing(model, inp), atol=TOL, rtol=0)
-    v_causal = causal_fn(model, *_seq_args(inp, "clean", jnp.zeros_like(inp["t"])))
-    np.testing.assert_allclose(out["commit"], v_causal, atol=TOL, rtol=0)
+    out = _cached_rollout_agrees(cfg, model, inp)
     last = inp["clean"][:, :, -1]
     np.testing.assert_allclose(out["cache"].latent, jnp.broadcast_to(last, out["cache"].latent.shape), atol=1e-6)
 
