@@ -42,20 +42,17 @@ CAMERA_ROPE_VARIANTS = ("camera_rope",)  # the others run with camera RoPE / war
 CAMERA_WARP_VARIANTS = ("camera_warp",)
 
 
-def matched_camera_rope(cfg, yaw: float) -> tuple[float, float]:
-    """``DiTConfig.camera_rope`` whose width offset follows the synthetic shift: a latent frame of k ticks at
-    ``yaw`` scaled units per tick moves the field one latent pixel, 1 / patch width tokens."""
-    from solaris_env.spaces import CAMERA_SCALE_DEG
-
-    degrees_per_pixel = cfg.frames_per_step * yaw * CAMERA_SCALE_DEG
-    return (0.0, 1.0 / (cfg.dit.patch_size[2] * degrees_per_pixel))
-
-
 def matched_camera_warp(cfg, yaw: float) -> tuple[float, float]:
-    """``DiTConfig.camera_warp`` (latent pixels per degree) that moves the previous latent as the synthetic shift."""
+    """``DiTConfig.camera_warp`` (latent pixels per degree) that moves the previous latent as the synthetic shift:
+    a latent frame of k ticks at ``yaw`` scaled units per tick moves the field one latent pixel."""
     from solaris_env.spaces import CAMERA_SCALE_DEG
 
     return (0.0, 1.0 / (cfg.frames_per_step * yaw * CAMERA_SCALE_DEG))
+
+
+def matched_camera_rope(cfg, yaw: float) -> tuple[float, float]:
+    """``DiTConfig.camera_rope`` (token positions per degree) for the same shift: the warp's over the patch width."""
+    return (0.0, matched_camera_warp(cfg, yaw)[1] / cfg.dit.patch_size[2])
 
 
 def smooth_fields(rng: np.random.Generator, n: int, h: int, w: int, c: int, sigma: float) -> np.ndarray:

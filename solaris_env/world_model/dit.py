@@ -42,7 +42,6 @@ from solaris_env.world_model.action_module import ActionModule, action_windows, 
 from solaris_env.world_model.attention import (RMSNorm, attention, attention_heads_major, dense, layer_norm,
                                                stop_gradient_where)
 from solaris_env.world_model.config import WorldModelConfig
-from solaris_env.spaces import CAMERA_SCALE_DEG
 
 # ---------------------------------------------------------------------------------------------
 # Helpers
@@ -728,7 +727,7 @@ class WorldDiT(nnx.Module):
         d = self.cfg.dit
         if not d.camera_rope_enabled:
             return None
-        inc = rope.camera_increments(mouse_BPFWA, self.cfg.frames_per_step, d.camera_rope, CAMERA_SCALE_DEG)
+        inc = rope.camera_increments(camera_lib.frame_turns(mouse_BPFWA, self.cfg.frames_per_step), d.camera_rope)
         return rope.camera_positions(base_BP2, inc)
 
     def _with_camera(self, cache: kv_cache.DiTCache, camera_BPF2, x_in, keep: int | None) -> kv_cache.DiTCache:

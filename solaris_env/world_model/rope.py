@@ -28,6 +28,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from solaris_env.world_model import camera
+
 
 def _inv_freq(num_pairs: int, theta: float) -> np.ndarray:
     """(num_pairs,) theta ** (-2k / (2 * num_pairs)) for one axis with its own dim."""
@@ -88,21 +90,11 @@ def temporal_rope_angles(rope_dims: tuple[int, int, int], theta: float, num_fram
     return temporal_rope_angles_at(rope_dims, theta, frame_positions(num_frames, start_frame))
 
 
-def camera_increments(mouse_BPFWA: jax.Array, frames_per_step: int, camera_rope: tuple[float, float],
-                      degrees_per_unit: float) -> jax.Array:
-    """(B, P, F, 2) (height, width) position change of each latent frame over the previous one.
-
-    Args:
-        mouse_BPFWA: per-latent-frame action windows of the mouse, last dim [cameraX (yaw, + = left),
-            cameraY (pitch, + = up)] in model units; the last ``frames_per_step`` entries of frame i's window
-            are the turns between latent frames i - 1 and i.
-        camera_rope: (height, width) positions per degree (``DiTConfig.camera_rope``).
-        degrees_per_unit: degrees of one model mouse unit (``spaces.CAMERA_SCALE_DEG``).
-    """
-    if mouse_BPFWA.shape[-1] != 2:
-        raise ValueError(f"camera RoPE reads [cameraX, cameraY]; the mouse windows have {mouse_BPFWA.shape[-1]} dims")
-    turn = mouse_BPFWA[..., -frames_per_step:, :].astype(jnp.float32).sum(axis=-2) * degrees_per_unit  # [yaw, pitch]
-    return -jnp.stack([turn[..., 1] * camera_rope[0], turn[..., 0] * camera_rope[1]], axis=-1)
+def camera_increments(turns_BPF2: jax.Array, camera_rope: tuple[float, float]) -> jax.Array:
+    """(B, P, F, 2) (height, width) position change of each latent frame over the previous one: minus the move
+    of the view's content (``camera.content_shift``) for the frame's turn (``camera.frame_turns``, degrees), at
+    ``camera_rope`` positions per degree."""
+    return -camera.content_shift(turns_BPF2, camera_rope)
 
 
 def camera_positions(base_BP2: jax.Array | None, increments_BPF2: jax.Array) -> jax.Array:

@@ -43,7 +43,7 @@ def test_increments_sum_the_frames_last_k_turns_with_mineflayer_signs():
     mouse[0, 0, 1, -k:, 0] = 0.5  # player 0, frame 1: k ticks of yaw left, 0.5 units each
     mouse[0, 0, 1, :-k, 0] = 9.0  # older ticks of the window belong to earlier frames: not counted
     mouse[0, 1, 2, -1, 1] = -1.0  # player 1, frame 2: one tick of pitch down
-    inc = np.asarray(rope.camera_increments(jnp.asarray(mouse), k, CAMERA, CAMERA_SCALE_DEG))
+    inc = np.asarray(rope.camera_increments(camera_lib.frame_turns(jnp.asarray(mouse), k), CAMERA))
     assert inc.shape == (1, 2, 3, 2)
     want = np.zeros_like(inc)
     want[0, 0, 1, 1] = -CAMERA[1] * 4 * 0.5 * CAMERA_SCALE_DEG  # turn left: width position decreases
@@ -140,8 +140,8 @@ def test_cached_rollout_equals_teacher_forcing_and_causal(camera_model):
     out = _cached_rollout_agrees(cfg, model, inp)
     # the cache ends at the last frame's accumulated offset, in every layer
     windows = action_windows(inp["mouse"], cfg, FRAMES)
-    want = rope.camera_positions(None, rope.camera_increments(windows, cfg.frames_per_step, cfg.dit.camera_rope,
-                                                              CAMERA_SCALE_DEG))[:, :, -1]
+    turns = camera_lib.frame_turns(windows, cfg.frames_per_step)
+    want = rope.camera_positions(None, rope.camera_increments(turns, cfg.dit.camera_rope))[:, :, -1]
     np.testing.assert_allclose(out["cache"].camera, jnp.broadcast_to(want, out["cache"].camera.shape), rtol=1e-5)
 
 
