@@ -3,8 +3,8 @@
     solaris-train all --preset tiny --data data/tiny --out runs/tiny       # collect, VAE, stages 1-4
     solaris-train vae --preset tiny --data data/tiny --out runs/tiny
     solaris-train vae-decoder --preset tiny --data data/tiny --out runs/tiny   # decoder on long clips
-    solaris-train sp | mp-bidirectional | mp-causal | self-forcing --data ... --out ...
-    solaris-train install runs/tiny/self-forcing/model                    # -> solaris_env/assets/default
+    solaris-train sp | mp-bidirectional | mp-causal | self-forcing | refiner --data ... --out ...
+    solaris-train install runs/tiny/refiner/model                         # -> solaris_env/assets/default
 
 Each stage reads the previous stage's ``OUT/<stage>/model`` and resumes from its own latest checkpoint
 (``--no-resume`` starts over). Per-stage defaults live in ``training/configs/<preset>.json``;
@@ -20,7 +20,8 @@ import logging
 import sys
 from pathlib import Path
 
-STAGE_COMMANDS = ("vae", "vae-decoder", "sp", "mp-bidirectional", "mp-causal", "self-forcing")  # ``all``, in order
+STAGE_COMMANDS = ("vae", "vae-decoder", "sp", "mp-bidirectional", "mp-causal", "self-forcing",
+                  "refiner")  # ``all``, in order
 EXTRA_STAGE_COMMANDS = ("mp-rollout",)  # training.train.EXTRA_STAGES: run by name only
 ELASTIC_STAGES = ("sp", "mp-bidirectional", "mp-causal")  # may end early to keep `all` within its time budget
 
@@ -60,6 +61,8 @@ def run_stage(stage: str, args, stage_cfg: dict, deadline: float | None = None) 
         return train.train_flow(stage, args.out, args.data, stage_cfg[stage], **kw)
     if stage == "self-forcing":
         return train.train_self_forcing(args.out, args.data, stage_cfg["self-forcing"], **kw)
+    if stage == "refiner":
+        return train.train_refiner(args.out, args.data, stage_cfg["refiner"], **kw)
     raise ValueError(f"unknown stage {stage!r}")
 
 

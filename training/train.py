@@ -5,7 +5,9 @@
       sp/                model/ (stage 1: bidirectional, one player, on the VPT-layout export)
       mp-bidirectional/  model/ (stage 2: bidirectional, both players, player embedding learned)
       mp-causal/         model/ (stage 3: block-causal sliding window, Diffusion Forcing)
-      self-forcing/      model/ (stage 4: Checkpointed Self Forcing with DMD; the final model)
+      self-forcing/      model/ (stage 4: Checkpointed Self Forcing with DMD)
+      refiner/           model/ (ours: stage 4's model + the temporal refiner trained on its rollouts; the final
+                         model), rollouts/ (the rollouts it trains on)
     each stage dir also holds checkpoints/ (orbax: train state + data-sampler state), metrics.jsonl and
     samples/ (periodic generated-vs-ground-truth videos of both players).
 
@@ -54,7 +56,7 @@ from training.step import (
 logger = logging.getLogger(__name__)
 
 CONFIG_DIR = Path(__file__).parent / "configs"
-STAGES = ("vae", "vae-decoder", "sp", "mp-bidirectional", "mp-causal", "self-forcing")
+STAGES = ("vae", "vae-decoder", "sp", "mp-bidirectional", "mp-causal", "self-forcing", "refiner")
 EXTRA_STAGES = ("mp-rollout",)  # not part of ``all``: run by name
 
 
@@ -489,6 +491,50 @@ def train_self_forcing(out: str | Path, data_dir: str | Path, stage_cfg: dict, s
     trained = nnx.merge(graphs.generator, state.generator.params, state.generator.rest)
     WorldModel(cfg, trained, vae, encoder).save(model_dir(out, "self-forcing"))
     return model_dir(out, "self-forcing")
+
+
+# ---------------------------------------------------------------------------------------------
+# Ours: the temporal refiner after the decoder (training/refine.py)
+# ---------------------------------------------------------------------------------------------
+
+
+def train_refiner(out: str | Path, data_dir: str | Path, stage_cfg: dict, seed: int = 0,
+                  steps: int | None = None, resume: bool = True, fsdp: bool = False) -> Path:
+    """The refiner of ``OUT/<init_from>/model`` (default self-forcing), trained on that model's rollouts of
+    the training episodes (``training.refine``); the model with it -> ``OUT/refiner/model``."""
+    from solaris_env.world_model.config import RefinerConfig
+    from training import refine as R
+
+    out, data_dir = Path(out), Path(data_dir)
+    sc = dict(stage_cfg)
+    steps = steps or sc["steps"]
+    base = WorldModel.load(model_dir(out, sc.get("init_from", "self-forcing")))
+    r = sc["refiner"]
+    refiner_cfg = RefinerConfig(width=r["width"], pool=r["pool"],
+                                action_dim=base.config.action.action_dim if r["actions"] else 0)
+    paths = R.make_rollouts(R.with_refiner(base, None), data_dir, stage_dir(out, "refiner") / "rollouts",
+                            sc["rollout_parts"], sc["segments_per_part"], sc["num_frames"], seed)
+    data = R.load_rollouts(paths)
+    model = R.with_refiner(base, refiner_cfg, seed)
+    del base
+    refiner = model.modules()[1].refiner
+    tx = make_optimizer(sc["lr"])
+    graphdef, state = TrainState.create(refiner, tx, rng=seed)
+    sampler = R.RolloutSampler(len(data["obs"]), local_batch_size(sc["batch_size"]), seed)
+
+    def draw():
+        i = sampler.next_indices()
+        return {key: jnp.asarray(v[i]) for key, v in data.items()}
+
+    n, t, h, w, _ = data["obs"].shape
+    spec = LoopSpec("refiner", steps, sc["log_every"], sc["ckpt_every"], sc.get("sample_every", steps),
+                    tokens_per_step=sc["batch_size"] * t * h * w, lr=sc["lr"], fsdp=fsdp)
+    state = run_loop(spec, out, state, R.make_refiner_step(graphdef, tx, sc.get("loss", "mse")), draw, sampler,
+                     resume)
+    dit, vae, encoder = model.modules()
+    vae.refiner = nnx.merge(graphdef, state.params, state.rest)
+    WorldModel(model.config, dit, vae, encoder).save(model_dir(out, "refiner"))
+    return model_dir(out, "refiner")
 
 
 # ---------------------------------------------------------------------------------------------

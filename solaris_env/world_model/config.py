@@ -158,6 +158,26 @@ DECODER_LAYOUT_FIELDS = ("decoder_base_dim", "decoder_head_upscale")
 
 
 @dataclass(frozen=True, slots=True)
+class RefinerConfig:
+    """The temporal refiner after the VAE decoder (ours, ``refiner.py``): each decoded frame is blended with the
+    previous output frame by a gate per ``pool x pool`` pixel cell, so a view that has not changed keeps the
+    exact pixels of the first frame. ``width`` 0 = off (the official layout)."""
+
+    width: int = 0  # channels of the gate network; 0 = no refiner
+    pool: int = 4  # pixels per gate cell along each axis
+    action_dim: int = 0  # the action vector the gate reads (0 = none; else ActionConfig.action_dim)
+
+    def __post_init__(self):
+        _require(self.width >= 0, f"refiner.width must be >= 0 (0 = off), got {self.width}")
+        _require(self.pool >= 1, f"refiner.pool must be >= 1, got {self.pool}")
+        _require(self.action_dim >= 0, f"refiner.action_dim must be >= 0, got {self.action_dim}")
+
+    @property
+    def enabled(self) -> bool:
+        return self.width > 0
+
+
+@dataclass(frozen=True, slots=True)
 class VAEConfig:
     """A Wan-style causal video VAE (model-spec §7.1). ``temporal_downsample[i]`` says whether stage i
     halves time; the spatial factor is 2 ** (len(dim_mult) - 1)."""
@@ -185,6 +205,7 @@ class VAEConfig:
     latent_std: tuple[float, ...] = ()
     dtype: str = "float32"  # compute dtype (the official weights are mostly bf16)
     param_dtype: str = "float32"
+    refiner: RefinerConfig = field(default_factory=RefinerConfig)  # off by default
 
     def __post_init__(self):
         _require(len(self.temporal_downsample) == len(self.dim_mult) - 1,
@@ -339,6 +360,11 @@ class WorldModelConfig:
         _require(self.num_players >= 1, f"num_players must be >= 1, got {self.num_players}")
         _require(self.dit.multiplayer == "concat" or self.num_players <= self.dit.max_players,
                  f"num_players={self.num_players} exceeds dit.max_players={self.dit.max_players}")
+        r = self.vae.refiner
+        _require(r.action_dim in (0, self.action.action_dim),
+                 f"vae.refiner.action_dim must be 0 or the action size {self.action.action_dim}, got {r.action_dim}")
+        _require(not r.enabled or (self.frame_height % r.pool == 0 and self.frame_width % r.pool == 0),
+                 f"frame size {self.frame_height}x{self.frame_width} must be divisible by vae.refiner.pool={r.pool}")
         _require(self.action.num_action_blocks <= self.dit.num_layers,
                  f"action.num_action_blocks={self.action.num_action_blocks} > dit.num_layers={self.dit.num_layers}")
 
