@@ -511,7 +511,8 @@ def train_refiner(out: str | Path, data_dir: str | Path, stage_cfg: dict, seed: 
     base = WorldModel.load(model_dir(out, sc.get("init_from", "self-forcing")))
     r = sc["refiner"]
     refiner_cfg = RefinerConfig(width=r["width"], pool=r["pool"],
-                                action_dim=base.config.action.action_dim if r["actions"] else 0)
+                                action_dim=base.config.action.action_dim if r["actions"] else 0,
+                                camera_shift=tuple(r.get("camera_shift", (0.0, 0.0))))
     paths = R.make_rollouts(R.with_refiner(base, None), data_dir, stage_dir(out, "refiner") / "rollouts",
                             sc["rollout_parts"], sc["segments_per_part"], sc["num_frames"], seed)
     data = R.load_rollouts(paths)

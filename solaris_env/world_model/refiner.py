@@ -7,8 +7,11 @@ first frame the user gave is exact. The refiner blends each decoded frame ``D_t`
 frame ``Y_{t-1}``, starting from the given first frame:
 
     Y_0 = first frame
-    Y_t = g_t * Y_{t-1} + (1 - g_t) * D_t,    g_t = sigmoid(gate(D_t, D_{t-1}, a_t)) in (0, 1)
+    Y_t = g_t * S_t(Y_{t-1}) + (1 - g_t) * D_t,    g_t = sigmoid(gate(D_t, S_t(D_{t-1}), a_t)) in (0, 1)
 
+``S_t`` moves a frame's content by frame t's camera turn (``camera_shift`` pixels per degree of pitch / yaw,
+``camera.content_shift``; linear interpolation, edges repeated), so a turning view carries its kept pixels
+along with the turn instead of holding them still; with ``camera_shift`` (0, 0) it is the identity.
 ``g_t`` is one value per ``pool x pool`` cell of pixels (upsampled by repetition), from a small CNN on the
 cell means of the two decoded frames and of their absolute difference, plus the frame's action vector
 (``action_dim``) as a per-channel bias: where the decoded view moves or the player acts, g -> 0 (the new
@@ -23,6 +26,8 @@ import jax
 import jax.numpy as jnp
 from flax import nnx
 
+from solaris_env.spaces import CAMERA_X_INDEX, CAMERA_Y_INDEX, CAMERA_SCALE_DEG
+from solaris_env.world_model.camera import content_shift, shift_latents
 from solaris_env.world_model.config import RefinerConfig
 
 
@@ -34,14 +39,25 @@ def cell_mean(x_NHWC: jax.Array, pool: int) -> jax.Array:
     return x_NHWC.reshape(n, h // pool, pool, w // pool, pool, c).mean(axis=(2, 4))
 
 
-def blend(gates_NTHW1: jax.Array, decoded_NTHW3: jax.Array, prev_NHW3: jax.Array) -> jax.Array:
-    """Y_t = g_t Y_{t-1} + (1 - g_t) D_t over the T frames, Y_{-1} = ``prev``: (N, T, H, W, 3)."""
+def frame_shifts(actions_NTA: jax.Array, pixels_per_degree: tuple[float, float]) -> jax.Array:
+    """(N, T, 2) (down, right) pixels each frame's camera turn moves the view's content (its action's mouse)."""
+    turns = actions_NTA[..., jnp.array([CAMERA_X_INDEX, CAMERA_Y_INDEX])].astype(jnp.float32) * CAMERA_SCALE_DEG
+    return content_shift(turns, pixels_per_degree)
+
+
+def blend(gates_NTHW1: jax.Array, decoded_NTHW3: jax.Array, prev_NHW3: jax.Array,
+          shifts_NT2: jax.Array | None = None) -> jax.Array:
+    """Y_t = g_t S_t(Y_{t-1}) + (1 - g_t) D_t over the T frames, Y_{-1} = ``prev``: (N, T, H, W, 3); ``S_t``
+    moves the content by ``shifts[:, t]`` pixels (down, right), the identity when ``shifts`` is None."""
     def step(y_prev, inputs):
-        g, d = inputs
+        g, d, shift = inputs
+        if shift is not None:
+            y_prev = shift_latents(y_prev, shift)
         y = g * y_prev + (1.0 - g) * d
         return y, y
 
-    _, ys = jax.lax.scan(step, prev_NHW3, (jnp.moveaxis(gates_NTHW1, 1, 0), jnp.moveaxis(decoded_NTHW3, 1, 0)))
+    tm = lambda x: None if x is None else jnp.moveaxis(x, 1, 0)
+    _, ys = jax.lax.scan(step, prev_NHW3, (tm(gates_NTHW1), tm(decoded_NTHW3), tm(shifts_NT2)))
     return jnp.moveaxis(ys, 0, 1)
 
 
@@ -56,14 +72,21 @@ class Refiner(nnx.Module):
         self.conv_mid = nnx.List([nnx.Conv(w, w, (3, 3), kernel_dilation=2, rngs=rngs) for _ in range(2)])
         self.conv_out = nnx.Conv(w, 1, (3, 3), rngs=rngs)
 
+    def shifts(self, actions_NTA: jax.Array) -> jax.Array | None:
+        """(N, T, 2) pixels each frame moves the previous one (``frame_shifts``), None without camera_shift."""
+        return frame_shifts(actions_NTA, self.cfg.camera_shift) if self.cfg.camera_shift_enabled else None
+
     def gates(self, decoded_NTHW3: jax.Array, prev_decoded_NHW3: jax.Array, actions_NTA: jax.Array) -> jax.Array:
         """g_t of every frame: (N, T, H, W, 1) in (0, 1); frame t's previous decode is frame t - 1's
-        (``prev_decoded`` for t = 0)."""
+        (``prev_decoded`` for t = 0), moved by frame t's turn."""
         n, t, h, w, _ = decoded_NTHW3.shape
         pool = self.cfg.pool
         before = jnp.concatenate([prev_decoded_NHW3[:, None], decoded_NTHW3[:, :-1]], axis=1)
         flat = lambda x: x.reshape((n * t,) + x.shape[2:])
         d, d_prev = flat(decoded_NTHW3), flat(before)
+        shifts = self.shifts(actions_NTA)
+        if shifts is not None:
+            d_prev = shift_latents(d_prev, flat(shifts))
         change = jnp.abs(d - d_prev).mean(axis=-1, keepdims=True)
         x = self.conv_in(jnp.concatenate([cell_mean(d, pool), cell_mean(d_prev, pool), cell_mean(change, pool)], -1))
         if self.actions is not None:
@@ -81,4 +104,5 @@ class Refiner(nnx.Module):
         frame) and ``prev_decoded`` (the decode it was made from). Streaming in chunks gives the same frames
         as one call on the whole clip."""
         g = self.gates(decoded_NTHW3, prev_decoded_NHW3, actions_NTA)
-        return blend(g, decoded_NTHW3.astype(jnp.float32), prev_frame_NHW3.astype(jnp.float32))
+        return blend(g, decoded_NTHW3.astype(jnp.float32), prev_frame_NHW3.astype(jnp.float32),
+                     self.shifts(actions_NTA))

@@ -70,8 +70,32 @@ def test_gates_read_the_actions_only_when_configured():
     np.testing.assert_array_equal(gates(without, noop), gates(without, act))
 
 
-def test_refiner_in_chunks_equals_one_call_on_the_clip():
-    refiner = _refiner()
+def test_frame_shifts_follow_the_camera_convention():
+    """+ cameraX (turn left) moves the content right, + cameraY (look up) moves it down, in pixels per degree."""
+    from solaris_env.spaces import CAMERA_SCALE_DEG, CAMERA_X_INDEX, CAMERA_Y_INDEX
+    from solaris_env.world_model.refiner import frame_shifts
+
+    a = np.zeros((1, 2, A), np.float32)
+    a[0, 0, CAMERA_X_INDEX] = 0.5
+    a[0, 1, CAMERA_Y_INDEX] = -1.0
+    s = np.asarray(frame_shifts(jnp.asarray(a), (0.8, 0.45)))
+    np.testing.assert_allclose(s[0, 0], [0.0, 0.5 * CAMERA_SCALE_DEG * 0.45], rtol=1e-6)
+    np.testing.assert_allclose(s[0, 1], [-CAMERA_SCALE_DEG * 0.8, 0.0], rtol=1e-6)
+
+
+def test_blend_moves_the_kept_frame_with_the_turn():
+    prev = _clip(1)[:, 0]
+    decoded = _clip(0, t=2)
+    ones = jnp.ones(decoded.shape[:-1] + (1,))
+    shifts = jnp.asarray(np.tile([[0.0, 2.0], [1.0, 0.0]], (2, 1, 1)), jnp.float32)  # 2 px right, then 1 down
+    y = np.asarray(blend(ones, decoded, prev, shifts))
+    np.testing.assert_array_equal(y[:, 0, :, 2:], np.asarray(prev)[:, :, :-2])  # integer shifts are exact
+    np.testing.assert_array_equal(y[:, 1, 1:, 2:], np.asarray(prev)[:, :-1, :-2])
+
+
+@pytest.mark.parametrize("camera_shift", [(0.0, 0.0), (0.8, 0.45)])
+def test_refiner_in_chunks_equals_one_call_on_the_clip(camera_shift):
+    refiner = Refiner(RefinerConfig(width=8, pool=4, action_dim=A, camera_shift=camera_shift), rngs=nnx.Rngs(0))
     decoded, first = _clip(0, t=9), _clip(1)[:, 0]
     actions = jax.random.normal(jax.random.key(2), (2, 9, A))
     whole = refiner(decoded[:, 1:], decoded[:, 0], first, actions[:, 1:])
@@ -88,6 +112,8 @@ def test_refiner_config_errors_name_the_field():
         RefinerConfig(width=-1)
     with pytest.raises(ValueError, match="refiner.pool"):
         RefinerConfig(width=4, pool=0)
+    with pytest.raises(ValueError, match="refiner.camera_shift"):
+        RefinerConfig(width=4, camera_shift=(float("nan"), 0.0))
     cfg = preset("test")
     with pytest.raises(ValueError, match="refiner.action_dim must be 0 or the action size 25"):
         cfg.replace(vae=dataclasses.replace(cfg.vae, refiner=RefinerConfig(width=4, action_dim=7)))
@@ -101,7 +127,7 @@ def models():
     from training.refine import with_refiner
 
     plain = WorldModel.from_preset("test", seed=0)
-    refined = with_refiner(plain, RefinerConfig(width=8, pool=4, action_dim=A), seed=3)
+    refined = with_refiner(plain, RefinerConfig(width=8, pool=4, action_dim=A, camera_shift=(0.8, 0.45)), seed=3)
     return plain, refined
 
 
@@ -112,6 +138,7 @@ def test_world_model_refines_its_decodes_starting_from_the_first_frame(models):
     rng = np.random.default_rng(0)
     first = rng.integers(0, 256, (2, 2, 32, 32, 3), dtype=np.uint8)
     actions = (rng.random((3, 2, 2, 4, A)) < 0.3).astype(np.float32)  # 3 steps of (B, P, k, 25)
+    actions[..., 23:] = rng.uniform(-1, 1, actions.shape[:-1] + (2,))  # and camera turns
     runs = []
     for model in (plain, refined):
         state = model.init(first, 7)
@@ -143,7 +170,7 @@ def test_with_refiner_keeps_every_other_parameter_and_round_trips(models, tmp_pa
         np.testing.assert_array_equal(a[k], b[k], err_msg=k)
     refined.save(tmp_path / "m")
     loaded = WorldModel.load(tmp_path / "m")
-    assert loaded.config.vae.refiner == RefinerConfig(width=8, pool=4, action_dim=A)
+    assert loaded.config.vae.refiner == RefinerConfig(width=8, pool=4, action_dim=A, camera_shift=(0.8, 0.45))
     c = flat(loaded)
     for k in b:
         np.testing.assert_array_equal(b[k], c[k], err_msg=k)
