@@ -1,6 +1,6 @@
 """``solaris-train``: the training pipeline as commands.
 
-    solaris-train all --preset tiny --data data/tiny --out runs/tiny       # collect, VAE, stages 1-4
+    solaris-train all --preset tiny --data data/tiny --out runs/tiny       # collect, VAE, stages 1-4, refiner
     solaris-train vae --preset tiny --data data/tiny --out runs/tiny
     solaris-train vae-decoder --preset tiny --data data/tiny --out runs/tiny   # decoder on long clips
     solaris-train sp | mp-bidirectional | mp-causal | self-forcing | refiner --data ... --out ...
@@ -166,7 +166,7 @@ def build_parser() -> argparse.ArgumentParser:
         common(p)
         p.add_argument("--steps", type=int, default=None, help="number of updates (default: the stage config's)")
         p.set_defaults(func=cmd_stage)
-    a = sub.add_parser("all", help="collect data, then the VAE and stages 1-4 in order (finished stages, "
+    a = sub.add_parser("all", help="collect data, then the VAE, stages 1-4 and the refiner in order (finished stages, "
                                    "those with a model/, are skipped; an unfinished one resumes)")
     common(a)
     a.add_argument("--time-budget-min", type=float, default=None,

@@ -11,10 +11,12 @@ On held-out Duet episodes (``DATA/duet/test``), from each segment's first frame 
 (c) collapse: a ``long_steps`` rollout (default 200) with PSNR and mean/std of the pixels over time
     (a collapsing model drifts to a flat or saturated image);
 next to both, the VAE's reconstruction of the ground truth (its encode then decode, i.e. a DiT that predicted
-every latent exactly: the ceiling of a model without the temporal refiner), and the teacher-forced rollout (each step predicted from the true past
-latents: its gap to (a) is the drift, its gap to the ceiling the per-step error); for a model with the
-temporal refiner (``VAEConfig.refiner``) also the same rollout without it. PSNR is the mean over frames of each
-frame's PSNR (the criterion); next to it, the PSNR of the mean squared error over all frames; plus a contact sheet (generated over ground truth, both players, 64 steps) and ``eval.json``.
+every latent exactly: the ceiling of a model without the temporal refiner), and the teacher-forced rollout
+(each step predicted from the true past latents: its gap to (a) is the drift, its gap to the ceiling the
+per-step error); for a model with the temporal refiner (``VAEConfig.refiner``) also the same rollout without
+it. PSNR is the mean over frames of each frame's PSNR (the criterion); next to it, the PSNR of the mean squared
+error over all frames; plus a contact sheet (generated over ground truth, both players, 64 steps) and
+``eval.json``.
 """
 
 from __future__ import annotations

@@ -169,7 +169,7 @@ class WorldState:
     dit_cache: tuple  # per-layer rolling caches of the committed frames (all but the last): one DiTCache per layer, leaves (B, 1, ...)
     vae_cache: Any  # streaming VAE-decoder cache, leaves (B, P, ...)
     latent_BP1hwC: jax.Array  # (B, P, 1, h, w, C) f32: the last generated latent frame (the next step commits it)
-    frame0_BPHW3: jax.Array  # (B, P, H, W, 3) uint8: latent frame 0 decoded (set by init / reset); the first frame with the refiner
+    frame0_BPHW3: jax.Array  # (B, P, H, W, 3) uint8: latent frame 0 decoded (init / reset); with the refiner the first frame
     frame_BPHW3: jax.Array | None = None  # (B, P, H, W, 3) f32 in [-1, 1]: the last output frame (refiner only)
     decoded_BPHW3: jax.Array | None = None  # (B, P, H, W, 3) f32: the decode it was refined from (refiner only)
 
