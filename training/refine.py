@@ -38,6 +38,7 @@ import optax
 from flax import nnx
 
 from solaris_env.world_model.config import RefinerConfig
+from solaris_env.world_model.refiner import Refiner
 from solaris_env.world_model.vae import CausalVideoVAE
 from solaris_env.world_model.world_model import WorldModel, frames_to_model
 from training.step import TrainState, apply_gradients
@@ -51,18 +52,18 @@ ROLLOUT_KEYS = ("obs", "act", "gen")  # ground truth (B, T, P, H, W, 3) uint8, a
 
 def with_refiner(model: WorldModel, refiner: RefinerConfig | None, seed: int = 0) -> WorldModel:
     """The same DiT, VAE and image encoder with the refiner ``refiner`` (its gate freshly initialised, or
-    kept when ``model`` already has one of the same config) or without one (None or width 0)."""
+    kept when ``model`` already has one of the same config) or without one (None or width 0). Only the gate
+    is initialised; every other VAE leaf is ``model``'s own."""
     refiner = refiner or RefinerConfig()
     cfg = model.config.replace(vae=dataclasses.replace(model.config.vae, refiner=refiner))
     dit, vae, encoder = model.modules()
-    new_vae = CausalVideoVAE(cfg.vae, rngs=nnx.Rngs(seed))
-    graphdef, new_state = nnx.split(new_vae)
-    values = dict(nnx.to_flat_state(new_state))
+    graphdef, _ = nnx.split(nnx.eval_shape(lambda: CausalVideoVAE(cfg.vae, rngs=nnx.Rngs(0))))
     keep_refiner = model.config.vae.refiner == refiner
-    for path, value in nnx.to_flat_state(nnx.state(vae)):
-        if path[0] != "refiner" or keep_refiner:
-            values[path] = value
-    return WorldModel(cfg, dit, nnx.merge(graphdef, nnx.from_flat_state(list(values.items()))), encoder)
+    values = [(path, v) for path, v in nnx.to_flat_state(nnx.state(vae)) if path[0] != "refiner" or keep_refiner]
+    if refiner.enabled and not keep_refiner:
+        fresh = nnx.state(Refiner(refiner, rngs=nnx.Rngs(seed)))
+        values += [(("refiner",) + tuple(path), v) for path, v in nnx.to_flat_state(fresh)]
+    return WorldModel(cfg, dit, nnx.merge(graphdef, nnx.from_flat_state(values)), encoder)
 
 
 # ---------------------------------------------------------------------------------------------

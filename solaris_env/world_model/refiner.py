@@ -79,14 +79,16 @@ class Refiner(nnx.Module):
     def gates(self, decoded_NTHW3: jax.Array, prev_decoded_NHW3: jax.Array, actions_NTA: jax.Array) -> jax.Array:
         """g_t of every frame: (N, T, H, W, 1) in (0, 1); frame t's previous decode is frame t - 1's
         (``prev_decoded`` for t = 0), moved by frame t's turn."""
+        return self._gates(decoded_NTHW3, prev_decoded_NHW3, actions_NTA, self.shifts(actions_NTA))
+
+    def _gates(self, decoded_NTHW3, prev_decoded_NHW3, actions_NTA, shifts_NT2) -> jax.Array:
         n, t, h, w, _ = decoded_NTHW3.shape
         pool = self.cfg.pool
         before = jnp.concatenate([prev_decoded_NHW3[:, None], decoded_NTHW3[:, :-1]], axis=1)
         flat = lambda x: x.reshape((n * t,) + x.shape[2:])
         d, d_prev = flat(decoded_NTHW3), flat(before)
-        shifts = self.shifts(actions_NTA)
-        if shifts is not None:
-            d_prev = shift_latents(d_prev, flat(shifts))
+        if shifts_NT2 is not None:
+            d_prev = shift_latents(d_prev, flat(shifts_NT2))  # any (N, H, W, C) frames, not only latents
         change = jnp.abs(d - d_prev).mean(axis=-1, keepdims=True)
         x = self.conv_in(jnp.concatenate([cell_mean(d, pool), cell_mean(d_prev, pool), cell_mean(change, pool)], -1))
         if self.actions is not None:
@@ -103,6 +105,6 @@ class Refiner(nnx.Module):
         """The refined frames (N, T, H, W, 3) of T decoded frames following ``prev_frame`` (the last output
         frame) and ``prev_decoded`` (the decode it was made from). Streaming in chunks gives the same frames
         as one call on the whole clip."""
-        g = self.gates(decoded_NTHW3, prev_decoded_NHW3, actions_NTA)
-        return blend(g, decoded_NTHW3.astype(jnp.float32), prev_frame_NHW3.astype(jnp.float32),
-                     self.shifts(actions_NTA))
+        shifts = self.shifts(actions_NTA)
+        g = self._gates(decoded_NTHW3, prev_decoded_NHW3, actions_NTA, shifts)
+        return blend(g, decoded_NTHW3.astype(jnp.float32), prev_frame_NHW3.astype(jnp.float32), shifts)
