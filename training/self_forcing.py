@@ -52,6 +52,7 @@ Shapes: the DiT's stream layout (``dit.py``): latents (B, P, F, h, w, C), t (B, 
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, NamedTuple
@@ -277,9 +278,18 @@ GeneratorX0 = Callable[..., jax.Array]  # (graphdef, params, rest, batch, key, e
 # ---------------------------------------------------------------------------------------------
 
 
-def score_x0(dit: WorldDiT, x_t: jax.Array, t_BPF: jax.Array, batch: dict) -> jax.Array:
-    """x0 prediction of a bidirectional score model: x_t - sigma v(x_t, t), f32."""
-    v = dit.forward_bidirectional(x_t, t_BPF.astype(jnp.float32), *(batch[k] for k in CONDITIONING_KEYS))
+def _bidirectional(dit: WorldDiT, clean_BPFhwC: jax.Array) -> Callable:
+    """``dit.forward_bidirectional``; with the camera warp it reads the previous frames from ``clean_BPFhwC``
+    (the generated x0), as the score models were trained on clean previous frames (``training.step``)."""
+    if not dit.cfg.dit.camera_warp_enabled:
+        return dit.forward_bidirectional
+    return functools.partial(dit.forward_bidirectional, clean=jax.lax.stop_gradient(clean_BPFhwC))
+
+
+def score_x0(dit: WorldDiT, x_t: jax.Array, t_BPF: jax.Array, batch: dict, clean_BPFhwC: jax.Array) -> jax.Array:
+    """x0 prediction of a bidirectional score model: x_t - sigma v(x_t, t), f32. ``clean_BPFhwC``: the clean
+    latents x_t was noised from, whose previous frames the camera warp reads (unused without it)."""
+    v = _bidirectional(dit, clean_BPFhwC)(x_t, t_BPF.astype(jnp.float32), *(batch[k] for k in CONDITIONING_KEYS))
     sigma = _sigma(t_BPF.astype(jnp.float32), dit.cfg)[..., None, None, None]
     return x_t.astype(jnp.float32) - sigma * v.astype(jnp.float32)
 
@@ -314,8 +324,8 @@ def generator_dmd_loss(x0_fn: GeneratorX0, graphs: SelfForcingGraphs, params, st
     x_t = (1.0 - sigma) * x0_sg + sigma * jax.random.normal(k_noise, x0.shape, jnp.float32)
     teacher = nnx.merge(graphs.teacher, state.teacher_params, state.teacher_rest)
     critic = nnx.merge(graphs.critic, jax.lax.stop_gradient(state.critic.params), state.critic.rest)
-    real_x0 = jax.lax.stop_gradient(score_x0(teacher, x_t, t_BPF, batch))
-    fake_x0 = jax.lax.stop_gradient(score_x0(critic, x_t, t_BPF, batch))
+    real_x0 = jax.lax.stop_gradient(score_x0(teacher, x_t, t_BPF, batch, x0_sg))
+    fake_x0 = jax.lax.stop_gradient(score_x0(critic, x_t, t_BPF, batch, x0_sg))
     grad = dmd_gradient(x0_sg, real_x0, fake_x0, sf_cfg)
     aux = {"exit_index": exit_index, "dmd_grad_abs_mean": jnp.mean(jnp.abs(grad))}
     return dmd_loss(x0, grad), aux
@@ -324,7 +334,7 @@ def generator_dmd_loss(x0_fn: GeneratorX0, graphs: SelfForcingGraphs, params, st
 def critic_loss(critic: WorldDiT, generated_BPFhwC: jax.Array, batch: dict, t_BPF: jax.Array, noise: jax.Array,
                 sf_cfg: SelfForcingConfig) -> jax.Array:
     """Flow matching MSE of the critic on sg(generated frames), nan -> 0, +inf -> ``critic_loss_posinf``."""
-    loss = flow_matching_loss(critic.forward_bidirectional, jax.lax.stop_gradient(generated_BPFhwC),
+    loss = flow_matching_loss(_bidirectional(critic, generated_BPFhwC), jax.lax.stop_gradient(generated_BPFhwC),
                               *(batch[k] for k in CONDITIONING_KEYS), t_BPF, noise)
     return jnp.nan_to_num(loss, nan=0.0, posinf=sf_cfg.critic_loss_posinf)
 

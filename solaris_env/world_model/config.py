@@ -495,7 +495,9 @@ class WorldModelConfig:
         9 ms, same parameter count) -- chosen, to fit the 20 env steps/s budget."""
         kw = dict(
             name="tiny", frame_height=64, frame_width=64,
-            dit=DiTConfig(dim=256, num_layers=8, num_heads=4, ffn_dim=1024, window=6),
+            # camera_warp: the previous latent moved by the frame's turn as an input (session 13: 64x64 frames turn
+            # ~0.80 / 0.45 px per degree of pitch / yaw; /8 for the latent grid)
+            dit=DiTConfig(dim=256, num_layers=8, num_heads=4, ffn_dim=1024, window=6, camera_warp=(0.0998, 0.0561)),
             # mouse_input_gain 10: on the synthetic shift task (benchmarks/action_learnability.py, from scratch) the
             # DiT reads the turn's direction sooner than with 1 (action_gain at 300 / 600 steps 2.7 / 12.4 % vs
             # 0.7 / 6.5 %)
