@@ -7,9 +7,13 @@
     solaris-engine collect --out $D/train_duet --episodes 5 --world normal --resolution 64 --seed 1000
     solaris-engine collect --out $D/train_tr --eval --eval-types translationEval --episodes 48 \\
         --resolution 64 --seed 1002                      # more walkers receding to ~2 pixels for motion
+    solaris-engine collect --out $D/train_flat --episodes 60 --world flat --instances 10 \\
+        --types lookAround walkLook orbit --resolution 64 --seed 1004 --test-fraction 0
+        # all five flat surfaces (variant = instance mod 5: grass, snow, sand, red sand), pitch +-30 deg
     solaris-engine collect --out $D/heldout --eval --episodes 32 --resolution 64 --seed 2000
     OUT=solaris_env/assets/judges DATA="$D/train $D/train_ttl $D/train_duet"
-    python -m solaris_env.judges.train --data $DATA --out $OUT --questions visible position structure same_scenery
+    python -m solaris_env.judges.train --data $DATA --out $OUT --questions structure same_scenery
+    python -m solaris_env.judges.train --data $DATA $D/train_flat --out $OUT --questions visible position
     python -m solaris_env.judges.train --data $DATA $D/train_tr --out $OUT --questions motion --steps 4000 \\
         --heldout $D/heldout
     # the shipped weights: ~3-5 min per probe (2500 steps) on 2 shared CPU cores, motion ~6-8 min
