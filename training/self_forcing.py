@@ -278,18 +278,12 @@ GeneratorX0 = Callable[..., jax.Array]  # (graphdef, params, rest, batch, key, e
 # ---------------------------------------------------------------------------------------------
 
 
-def _bidirectional(dit: WorldDiT, clean_BPFhwC: jax.Array) -> Callable:
-    """``dit.forward_bidirectional``; with the camera warp it reads the previous frames from ``clean_BPFhwC``
-    (the generated x0), as the score models were trained on clean previous frames (``training.step``)."""
-    if not dit.cfg.dit.camera_warp_enabled:
-        return dit.forward_bidirectional
-    return functools.partial(dit.forward_bidirectional, clean=jax.lax.stop_gradient(clean_BPFhwC))
-
-
 def score_x0(dit: WorldDiT, x_t: jax.Array, t_BPF: jax.Array, batch: dict, clean_BPFhwC: jax.Array) -> jax.Array:
     """x0 prediction of a bidirectional score model: x_t - sigma v(x_t, t), f32. ``clean_BPFhwC``: the clean
-    latents x_t was noised from, whose previous frames the camera warp reads (unused without it)."""
-    v = _bidirectional(dit, clean_BPFhwC)(x_t, t_BPF.astype(jnp.float32), *(batch[k] for k in CONDITIONING_KEYS))
+    latents x_t was noised from, whose previous frames the camera warp reads, as the score models were trained on
+    clean previous frames (``training.step``); the DiT ignores them without the warp."""
+    v = dit.forward_bidirectional(x_t, t_BPF.astype(jnp.float32), *(batch[k] for k in CONDITIONING_KEYS),
+                                  clean=jax.lax.stop_gradient(clean_BPFhwC))
     sigma = _sigma(t_BPF.astype(jnp.float32), dit.cfg)[..., None, None, None]
     return x_t.astype(jnp.float32) - sigma * v.astype(jnp.float32)
 
@@ -334,8 +328,9 @@ def generator_dmd_loss(x0_fn: GeneratorX0, graphs: SelfForcingGraphs, params, st
 def critic_loss(critic: WorldDiT, generated_BPFhwC: jax.Array, batch: dict, t_BPF: jax.Array, noise: jax.Array,
                 sf_cfg: SelfForcingConfig) -> jax.Array:
     """Flow matching MSE of the critic on sg(generated frames), nan -> 0, +inf -> ``critic_loss_posinf``."""
-    loss = flow_matching_loss(_bidirectional(critic, generated_BPFhwC), jax.lax.stop_gradient(generated_BPFhwC),
-                              *(batch[k] for k in CONDITIONING_KEYS), t_BPF, noise)
+    generated = jax.lax.stop_gradient(generated_BPFhwC)  # the warp reads its clean previous frames from it
+    forward = functools.partial(critic.forward_bidirectional, clean=generated)
+    loss = flow_matching_loss(forward, generated, *(batch[k] for k in CONDITIONING_KEYS), t_BPF, noise)
     return jnp.nan_to_num(loss, nan=0.0, posinf=sf_cfg.critic_loss_posinf)
 
 
