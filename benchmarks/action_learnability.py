@@ -14,10 +14,10 @@ shift-blind loss by reading the mouse.
 
 Scored on a fixed held-out batch with fixed timesteps and noise: the flow-matching loss with the true mouse,
 with it negated (the opposite shift), and zeroed; ``action_gain`` = loss(negated) / loss(true) - 1 (0 = the
-model ignores the mouse). Variants are ``ActionConfig`` settings: ``official`` (the reference design),
-``gain10`` (``mouse_input_gain`` 10), ``adaln`` (``adaln_actions``), and, with the official action module,
-``camera_rope`` / ``camera_warp`` (``DiTConfig.camera_rope`` / ``camera_warp`` set to the synthetic shift: one
-latent pixel per ``k * yaw`` units). Writes
+model ignores the mouse). Variants: ``official`` (the reference design), ``gain10`` (``ActionConfig.mouse_input_gain``
+10), and, with the official action module, ``camera_warp`` (``DiTConfig.camera_warp`` set to the synthetic shift:
+one latent pixel per ``k * yaw`` units). Two more variants measured no gain and were deleted with their options
+(docs/history.md: the adaLN action path, +0.7 %, and camera RoPE). Writes
 ``benchmarks/results/action_learnability.json``.
 """
 
@@ -33,13 +33,10 @@ import numpy as np
 
 RESULTS = Path(__file__).parent / "results" / "action_learnability.json"
 # every variant names both settings: the preset's own defaults (tiny: gain 10) must not leak into "official"
-VARIANTS = {"official": {"mouse_input_gain": 1.0, "adaln_actions": False},
-            "gain10": {"mouse_input_gain": 10.0, "adaln_actions": False},
-            "adaln": {"mouse_input_gain": 1.0, "adaln_actions": True},
-            "camera_rope": {"mouse_input_gain": 1.0, "adaln_actions": False},
-            "camera_warp": {"mouse_input_gain": 1.0, "adaln_actions": False}}
-CAMERA_ROPE_VARIANTS = ("camera_rope",)  # the others run with camera RoPE / warp off, named explicitly too
-CAMERA_WARP_VARIANTS = ("camera_warp",)
+VARIANTS = {"official": {"mouse_input_gain": 1.0},
+            "gain10": {"mouse_input_gain": 10.0},
+            "camera_warp": {"mouse_input_gain": 1.0}}
+CAMERA_WARP_VARIANTS = ("camera_warp",)  # the others run with the warp off, named explicitly too
 
 
 def matched_camera_warp(cfg, yaw: float) -> tuple[float, float]:
@@ -48,11 +45,6 @@ def matched_camera_warp(cfg, yaw: float) -> tuple[float, float]:
     from solaris_env.spaces import CAMERA_SCALE_DEG
 
     return (0.0, 1.0 / (cfg.frames_per_step * yaw * CAMERA_SCALE_DEG))
-
-
-def matched_camera_rope(cfg, yaw: float) -> tuple[float, float]:
-    """``DiTConfig.camera_rope`` (token positions per degree) for the same shift: the warp's over the patch width."""
-    return (0.0, matched_camera_warp(cfg, yaw)[1] / cfg.dit.patch_size[2])
 
 
 def smooth_fields(rng: np.random.Generator, n: int, h: int, w: int, c: int, sigma: float) -> np.ndarray:
@@ -111,10 +103,9 @@ def run_variant(name: str, preset: str, steps: int, batch: int, latent_frames: i
     from training.step import TrainState, make_loss_fn, make_optimizer, make_train_step
 
     base = make_preset(preset)
-    camera = matched_camera_rope(base, yaw) if name in CAMERA_ROPE_VARIANTS else (0.0, 0.0)
     warp = matched_camera_warp(base, yaw) if name in CAMERA_WARP_VARIANTS else (0.0, 0.0)
     cfg = base.replace(action=dataclasses.replace(base.action, **VARIANTS[name]),
-                       dit=dataclasses.replace(base.dit, camera_rope=camera, camera_warp=warp))
+                       dit=dataclasses.replace(base.dit, camera_warp=warp))
     dit = WorldDiT(cfg, rngs=nnx.Rngs(seed))
     tx = make_optimizer(lr)
     graphdef, state = TrainState.create(dit, tx, rng=seed)
@@ -148,7 +139,7 @@ def run_variant(name: str, preset: str, steps: int, batch: int, latent_frames: i
             curve.append(row)
             print(f"{name:>8s} step {step:5d}  loss true {row['loss_true']:.4f}  negated {row['loss_negated']:.4f}  "
                   f"zeroed {row['loss_zeroed']:.4f}  action_gain {row['action_gain']:+.3f}", flush=True)
-    return {"variant": name, "action_config": VARIANTS[name], "camera_rope": list(camera), "camera_warp": list(warp),
+    return {"variant": name, "action_config": VARIANTS[name], "camera_warp": list(warp),
             "curve": curve,
             "final": curve[-1],
             "steps_per_s": steps / (time.perf_counter() - t0)}

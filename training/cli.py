@@ -149,8 +149,7 @@ def cmd_with_decoder(args) -> int:
 
 def cmd_action_conditioning(args) -> int:
     from training.train import with_action_conditioning
-    dest = with_action_conditioning(args.model, args.out, args.mouse_gain, args.adaln_actions or None,
-                                    camera_warp=args.camera_warp)
+    dest = with_action_conditioning(args.model, args.out, args.mouse_gain, camera_warp=args.camera_warp)
     print(f"wrote {dest}")
     return 0
 
@@ -198,8 +197,6 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("model", help="a model/ directory")
     g.add_argument("--mouse-gain", type=float, default=None,
                    help="the new ActionConfig.mouse_input_gain (> 0): the camera pathway then trains that much faster")
-    g.add_argument("--adaln-actions", action="store_true",
-                   help="add the zero-initialised action embedding of the adaLN path (ActionConfig.adaln_actions)")
     g.add_argument("--camera-warp", type=float, nargs=2, default=None, metavar=("H", "W"),
                    help="turn on DiTConfig.camera_warp (latent pixels per degree of pitch / yaw); the patch "
                         "embedding's new rows start at zero")

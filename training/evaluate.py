@@ -51,23 +51,20 @@ def _segments(dataset, num_frames: int, count: int, seed: int) -> dict[str, np.n
 
 def evaluate(model_dir: str | Path, data_dir: str | Path, out_dir: str | Path, num_segments: int = 8,
              steps: int = 32, long_steps: int = 200, sheet_steps: int = 64, seed: int = 0,
-             context_noise: int | None = None, action_guidance: float | None = None) -> dict:
+             action_guidance: float | None = None) -> dict:
     import dataclasses
 
     from solaris_env.world_model.world_model import WorldModel
 
     model = WorldModel.load(model_dir)
-    if context_noise is not None:  # evaluate the weights under another commit timestep than their config's
-        model = model.with_sampler(dataclasses.replace(model.config.sampler, context_noise=context_noise))
-    if action_guidance is not None:  # ... or another action guidance (SamplerConfig.action_guidance)
+    if action_guidance is not None:  # evaluate under another action guidance (SamplerConfig.action_guidance)
         model = model.with_sampler(dataclasses.replace(model.config.sampler, action_guidance=action_guidance))
     cfg = model.config
     k = model.frames_per_step
     out_dir = Path(out_dir)
     dataset = D.DuetDataset(data_dir, "test", obs_size=(cfg.frame_height, cfg.frame_width))
     result: dict = {"model": str(model_dir), "data": str(data_dir), "episodes": len(dataset.valid_ids),
-                    "frames_per_step": k, "context_noise": cfg.sampler.context_noise,
-                    "action_guidance": cfg.sampler.action_guidance}
+                    "frames_per_step": k, "action_guidance": cfg.sampler.action_guidance}
 
     # (a) + (b): short rollouts
     seg = _segments(dataset, 1 + k * steps, num_segments, seed)
@@ -148,13 +145,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--steps", type=int, default=32)
     parser.add_argument("--long-steps", type=int, default=200)
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--context-noise", type=int, default=None,
-                        help="commit generated frames to the KV cache at this timestep (default: the model's config)")
     parser.add_argument("--action-guidance", type=float, default=None,
                         help="sample with this action guidance (SamplerConfig.action_guidance; default: the model's)")
     args = parser.parse_args(argv)
     result = evaluate(args.model, args.data, args.out, args.segments, args.steps, args.long_steps, seed=args.seed,
-                      context_noise=args.context_noise, action_guidance=args.action_guidance)
+                      action_guidance=args.action_guidance)
     print(json.dumps({k: v for k, v in result.items() if k != "long_rollout"}, indent=1))
     return 0
 

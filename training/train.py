@@ -573,14 +573,11 @@ def with_decoder(model: str | Path, decoder_from: str | Path, dest: str | Path) 
 
 
 def with_action_conditioning(model: str | Path, dest: str | Path, mouse_input_gain: float | None = None,
-                             adaln_actions: bool | None = None, camera_warp: tuple[float, float] | None = None,
-                             seed: int = 0) -> Path:
+                             camera_warp: tuple[float, float] | None = None) -> Path:
     """Write ``model`` under another action conditioning, computing the same function (None keeps a setting):
 
     * ``mouse_input_gain``: the mouse rows of every ``mouse_mlp`` first kernel scaled by old / new gain, so
       further training moves the camera pathway ``new / old`` times faster per Adam step;
-    * ``adaln_actions=True``: adds the action embedding of the adaLN path, freshly initialised with its last
-      layer at zero (``ActionConfig.adaln_actions``); turning it off is refused (it would drop trained weights);
     * ``camera_warp=(h, w)``: turns on ``DiTConfig.camera_warp`` (latent pixels per degree) with the patch
       embedding's new input rows (the warped previous latent) at zero; from a model that has it, only its scale
       changes (the weights are kept: the function changes wherever the camera turns).
@@ -589,13 +586,9 @@ def with_action_conditioning(model: str | Path, dest: str | Path, mouse_input_ga
 
     base = WorldModel.load(model)
     old = base.config
-    if adaln_actions is False and old.action.adaln_actions:
-        raise ValueError(f"{model} was trained with adaln_actions=True; dropping its action embedding would "
-                         "change the function")
     action = dataclasses.replace(
         old.action,
-        mouse_input_gain=old.action.mouse_input_gain if mouse_input_gain is None else float(mouse_input_gain),
-        adaln_actions=old.action.adaln_actions if adaln_actions is None else bool(adaln_actions))
+        mouse_input_gain=old.action.mouse_input_gain if mouse_input_gain is None else float(mouse_input_gain))
     dit = old.dit if camera_warp is None else dataclasses.replace(old.dit, camera_warp=tuple(map(float, camera_warp)))
     if old.dit.camera_warp_enabled and not dit.camera_warp_enabled:
         raise ValueError(f"{model} was trained with camera_warp={old.dit.camera_warp}; dropping it would drop its "
@@ -610,13 +603,6 @@ def with_action_conditioning(model: str | Path, dest: str | Path, mouse_input_ga
         pe.set_value(jnp.pad(k, pad))
     kernel = dit_state["blocks"]["action_model"]["mouse_mlp"]["layers"][0]["kernel"]
     kernel.set_value(rescaled_mouse_kernel(kernel.get_value(), old, action.mouse_input_gain))
-    if action.adaln_actions and not old.action.adaln_actions:  # new leaves from a fresh init, the rest kept
-        fresh = dict(nnx.to_flat_state(nnx.state(WorldDiT(cfg, rngs=nnx.Rngs(seed)), nnx.Param)))
-        kept = dict(nnx.to_flat_state(dit_state))
-        missing = sorted("/".join(map(str, k)) for k in kept if k not in fresh)
-        if missing:
-            raise ValueError(f"{model}: parameters {missing} have no place in the new layout")
-        dit_state = nnx.from_flat_state([(k, kept.get(k, v)) for k, v in fresh.items()])
     checkpoint.save(dest, cfg, dict(zip(COMPONENTS, (dit_state, vae_state, encoder_state))))
     return Path(dest)
 

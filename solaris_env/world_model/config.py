@@ -43,20 +43,12 @@ class DiTConfig:
     cross_attn_norm: bool = True
     window: int = 6  # sliding window in latent frames (causal modes)
     rope_theta: float = 10000.0
-    rope_max_positions: int = 1024
     multiplayer: str = "attn"  # "attn" = Solaris (joint self-attention), "concat" = players stacked in channels
     max_players: int = 2  # rows of the learned player embedding
     attention_impl: str = "xla"  # the only implementation today; model code never branches on platform
     context_norm_eps: float = 1e-5  # the two LayerNorms of img_emb (model-spec §2 step 3)
     dtype: str = "float32"  # compute dtype (bf16 is slower than f32 on our CPUs, stack.md)
     param_dtype: str = "float32"
-    # Camera RoPE (ours; (0, 0) = off, the official model): the 3D RoPE's (height, width) positions of a frame's
-    # tokens move by minus these many token positions per degree of the player's accumulated (pitch, yaw) camera
-    # (Mineflayer signs: + = up / left, the directions the view's content then moves away from), so a static
-    # scene keeps its RoPE position while the camera turns and the cross-frame attention's relative positions
-    # are world-aligned. About the view's pixels per degree at its centre over the token size in pixels
-    # (rope.camera_positions).
-    camera_rope: tuple[float, float] = (0.0, 0.0)
     # Camera warp (ours; (0, 0) = off, the official model): the previous latent frame, its content moved by the
     # frame's camera turn times these (height, width) latent pixels per degree (``camera.shift_latents``), joins
     # the patch embedding's input; a turn then shows up in an input channel instead of having to be synthesised.
@@ -64,10 +56,6 @@ class DiTConfig:
 
     def __post_init__(self):
         _require(self.dim % self.num_heads == 0, f"dim={self.dim} must be divisible by num_heads={self.num_heads}")
-        _require(len(self.camera_rope) == 2 and all(math.isfinite(c) for c in self.camera_rope),
-                 f"camera_rope must be two finite numbers (height, width positions per degree), got {self.camera_rope}")
-        _require(self.multiplayer == "attn" or not any(self.camera_rope),
-                 f"camera_rope={self.camera_rope} needs multiplayer='attn' (one RoPE grid per player)")
         _require(len(self.camera_warp) == 2 and all(math.isfinite(c) for c in self.camera_warp),
                  f"camera_warp must be two finite numbers (height, width latent pixels per degree), got {self.camera_warp}")
         _require(self.multiplayer == "attn" or not any(self.camera_warp),
@@ -81,10 +69,6 @@ class DiTConfig:
     @property
     def head_dim(self) -> int:
         return self.dim // self.num_heads
-
-    @property
-    def camera_rope_enabled(self) -> bool:
-        return any(c != 0.0 for c in self.camera_rope)
 
     @property
     def camera_warp_enabled(self) -> bool:
@@ -111,7 +95,6 @@ class ActionConfig:
     windows_size: int = 3  # latent frames of actions seen by one latent frame
     rope_theta: float = 256.0
     rope_dims: tuple[int, int, int] = (8, 28, 28)  # only the first (temporal) part rotates
-    rope_max_positions: int = 7500
     num_action_blocks: int = 15  # the module runs in blocks [0, num_action_blocks)
     qk_norm: bool = True
     eps: float = 1e-6  # per-head q/k RMSNorms
@@ -122,10 +105,6 @@ class ActionConfig:
     # first kernel add an RMS of 0.07 to its pre-activations against 1-3.9 from the token rows, and under
     # Adam's per-weight step a larger input moves that share proportionally faster.
     mouse_input_gain: float = 1.0
-    # Ours (False = the official model): each latent frame's action window (mouse and keyboard, flattened) also
-    # enters the adaLN path, embedded by an MLP whose last layer starts at zero and added to the frame's time
-    # embedding (DiT's class conditioning): every block's shift/scale/gate then depends on the frame's actions.
-    adaln_actions: bool = False
 
     def __post_init__(self):
         _require(math.isfinite(self.mouse_input_gain) and self.mouse_input_gain > 0,
@@ -320,11 +299,6 @@ class SamplerConfig:
     num_train_timesteps: int = 1000
     bidirectional_steps: int = 10
     shift: float = 5.0  # sigma' = shift*sigma / (1 + (shift-1)*sigma) for the N-step schedule
-    # The timestep at which a generated frame is committed to the KV cache: 0 (model-spec, the reference) writes
-    # the clean x0; t > 0 writes x_t = (1 - t/T) x0 + (t/T) eps, the "context noise" of the Self Forcing
-    # lineage, which a Diffusion-Forcing-trained model has seen and which hides small errors of its own frames.
-    # A rollout (inference) setting: Self Forcing training (training/self_forcing.py) always commits clean x0.
-    context_noise: int = 0
     # The share of fresh noise when an AR step re-noises its x0 (``sampler.sample_frame``): 1 = the spec (fresh
     # noise, the DMD-style rule a distilled generator is trained for); 0 = the predicted noise (the Euler step of
     # the flow ODE, the usual sampler of a model trained by flow matching alone). A rollout setting.
@@ -336,8 +310,6 @@ class SamplerConfig:
     action_guidance: float = 1.0
 
     def __post_init__(self):
-        _require(0 <= self.context_noise < self.num_train_timesteps,
-                 f"context_noise must be in [0, num_train_timesteps={self.num_train_timesteps}), got {self.context_noise}")
         _require(0.0 <= self.renoise_eta <= 1.0, f"renoise_eta must be in [0, 1], got {self.renoise_eta}")
         _require(math.isfinite(self.action_guidance) and self.action_guidance >= 0,
                  f"action_guidance must be a finite number >= 0, got {self.action_guidance}")
@@ -435,11 +407,6 @@ class WorldModelConfig:
     def cache_tokens(self) -> int:
         """Self-attention KV cache length: window x players x tokens (10560 for solaris)."""
         return self.dit.window * self.stream_players * self.tokens_per_frame
-
-    @property
-    def action_embedding_in_dim(self) -> int:
-        """The flattened [mouse | keyboard] window of one latent frame (``ActionConfig.adaln_actions``)."""
-        return self.action_window * self.players_in_channels * self.action.action_dim
 
     @property
     def action_window(self) -> int:

@@ -217,7 +217,7 @@ class ContextKV(NamedTuple):
 
 class _SequencePlan(NamedTuple):
     """What distinguishes the whole-sequence modes (bidirectional / causal / teacher forcing)."""
-    angles_LJ: jax.Array  # 3D RoPE of the packed (frame, player, token) sequence; (B, L, J) with camera RoPE
+    angles_LJ: jax.Array  # 3D RoPE of the packed (frame, player, token) sequence
     token_mask: jax.Array | None  # (L, L) self-attention mask; None = full
     action_angles_FJ: jax.Array  # temporal RoPE of the action module
     frame_mask: jax.Array | None  # (F, F) action-module mask; None = full
@@ -408,7 +408,7 @@ class DiTBlock(nnx.Module):
             layer < self.num_action_blocks, self.action_model, run_actions, lambda x, mc, kc: (x, mc, kc),
             x_BPFLD, cache.mouse, cache.keyboard,
             select=_layer_of(layer) if stacked_actions else None)
-        # camera RoPE offset / camera-warp latent pass through: the caller writes the new ones
+        # the camera-warp latent passes through: the caller writes the new one
         new_cache = cache.replace(self_attn=self_cache, mouse=mouse_cache, keyboard=keyboard_cache)
         return self._ffn_residual(x_BPFLD, mods), new_cache
 
@@ -484,12 +484,6 @@ class WorldDiT(nnx.Module):
         self.time_projection = nnx.Sequential(jax.nn.silu, dense(d.dim, 6 * d.dim, use_bias=True, **kw))
         self.img_emb = ImageContextProjection(cfg, rngs=rngs)
         self.player_embed = nnx.Embed(d.max_players, d.dim, **kw)
-        # ours, None in the official layout (ActionConfig.adaln_actions); the last layer starts at zero, so a
-        # trained model gains the path without changing its function
-        self.action_embedding = nnx.Sequential(
-            dense(cfg.action_embedding_in_dim, d.dim, use_bias=True, kernel_init=normal, **kw), jax.nn.silu,
-            dense(d.dim, d.dim, use_bias=True, kernel_init=nnx.initializers.zeros_init(), **kw),
-        ) if cfg.action.adaln_actions else None
         self.blocks = _stacked_blocks(cfg, rngs)
         self.head = Head(cfg, rngs=rngs)
 
@@ -502,7 +496,7 @@ class WorldDiT(nnx.Module):
         mouse_w = self._windows(mouse, num_frames)
         return self._forward_sequence(
             x, t, cond, context, mouse_w, self._windows(keyboard, num_frames),
-            rope.frame_positions(num_frames), frame_mask=None, kv_stop_F=None, camera=self._camera(None, mouse_w),
+            rope.frame_positions(num_frames), frame_mask=None, kv_stop_F=None,
             prev=_previous_frames(x if clean is None else clean))
 
     def forward_causal(self, x, t, cond, context, mouse, keyboard, clean=None) -> jax.Array:
@@ -513,7 +507,7 @@ class WorldDiT(nnx.Module):
         return self._forward_sequence(
             x, t, cond, context, mouse_w, self._windows(keyboard, num_frames),
             rope.frame_positions(num_frames), masks.causal_window_frame_mask(num_frames, self.cfg.dit.window),
-            kv_stop_F=None, camera=self._camera(None, mouse_w), prev=_previous_frames(x if clean is None else clean))
+            kv_stop_F=None, prev=_previous_frames(x if clean is None else clean))
 
     def forward_teacher_forcing(self, clean, noisy, t_clean, t_noisy, cond, context, mouse, keyboard, *,
                                 kv_grad: bool = True, remat: bool = True) -> jax.Array:
@@ -532,7 +526,6 @@ class WorldDiT(nnx.Module):
         twice = lambda a: jnp.concatenate([a, a], axis=2)
         kv_stop_F = None if kv_grad else np.repeat([True, False], num_frames)
         mouse_w = self._windows(mouse, num_frames)
-        camera = self._camera(None, mouse_w)  # clean j and noisy j share frame j's offset, like its position
         v = self._forward_sequence(
             jnp.concatenate([clean, noisy], axis=2), jnp.concatenate([t_clean, t_noisy], axis=2), twice(cond),
             context, twice(mouse_w), twice(self._windows(keyboard, num_frames)),
@@ -540,7 +533,7 @@ class WorldDiT(nnx.Module):
             masks.teacher_forcing_frame_mask(num_frames, self.cfg.dit.window), kv_stop_F,
             attend=functools.partial(_teacher_forcing_attention, num_frames=num_frames, window=self.cfg.dit.window,
                                      block=noisy.shape[1] * math.prod(self._grid()), impl=self.cfg.dit.attention_impl),
-            remat=remat, camera=None if camera is None else twice(camera), prev=twice(_previous_frames(clean)))
+            remat=remat, prev=twice(_previous_frames(clean)))
         return v[:, :, num_frames:]
 
     def decode_step(self, x, t, cond, context, mouse, keyboard, cache: kv_cache.DiTCache,
@@ -668,13 +661,6 @@ class WorldDiT(nnx.Module):
         num_frames = tokens.shape[2]  # tokens (B, P, F, L, D); > 1: block-causal, the first ``keep`` cached
         angles = rope.rope_3d_angles(d.rope_split, d.rope_theta, num_frames, gh, gw, tokens.shape[1], start_frame)
         action_angles = rope.temporal_rope_angles(c.action.rope_dims, c.action.rope_theta, num_frames, start_frame)
-        camera = None
-        if d.camera_rope_enabled:  # continue from the offset of the last cached frame
-            base = (cache[0] if isinstance(cache, tuple) else cache).camera
-            if base is None:
-                raise ValueError("camera_rope is on but the cache has no camera offset (kv_cache.init_cache)")
-            camera = self._camera(base if isinstance(cache, tuple) else base[0], cond_in.mouse_BPFWA)
-            angles = angles[None] + rope.camera_rope_angles(d.rope_split, d.rope_theta, camera, gh, gw)
         if layers is not None:  # one module per layer, static indices (see decode_step_cached)
             if len(layers) != d.num_layers:
                 raise ValueError(f"layers has {len(layers)} blocks; the config has num_layers={d.num_layers}")
@@ -693,9 +679,9 @@ class WorldDiT(nnx.Module):
             if not keep_cache:
                 new_caches = None
             elif not per_layer:
-                new_caches = self._with_camera(kv_cache.stack(tuple(new_caches)), camera, x_in, keep)
+                new_caches = self._with_latent(kv_cache.stack(tuple(new_caches)), x_in, keep)
             else:
-                new_caches = tuple(self._with_camera(n, camera, x_in, keep) for n in new_caches)
+                new_caches = tuple(self._with_latent(n, x_in, keep) for n in new_caches)
             return self._unpatchify(self.head(tokens, e)), new_caches
 
         # Per-layer caches and context K/V are read with a dynamic index (and the caches written back
@@ -718,24 +704,11 @@ class WorldDiT(nnx.Module):
         (tokens, new_caches), _ = jax.lax.scan(body, (tokens, cache if keep_cache else None),
                                                (rest_state, jnp.arange(d.num_layers)), unroll=unroll)
         if keep_cache:
-            new_caches = self._with_camera(new_caches, camera, x_in, keep)
+            new_caches = self._with_latent(new_caches, x_in, keep)
         return self._unpatchify(self.head(tokens, e)), new_caches
 
-    def _camera(self, base_BP2, mouse_BPFWA):
-        """Camera RoPE offsets (B, P, F, 2) of the frames whose mouse windows are given, continuing from
-        ``base`` (None: from 0); None when ``camera_rope`` is off."""
-        d = self.cfg.dit
-        if not d.camera_rope_enabled:
-            return None
-        inc = rope.camera_increments(camera_lib.frame_turns(mouse_BPFWA, self.cfg.frames_per_step), d.camera_rope)
-        return rope.camera_positions(base_BP2, inc)
-
-    def _with_camera(self, cache: kv_cache.DiTCache, camera_BPF2, x_in, keep: int | None) -> kv_cache.DiTCache:
-        """The cache with the camera RoPE offset and (camera warp) the latent of its newest kept frame (``keep``
-        new frames, default all)."""
-        if camera_BPF2 is not None:
-            last = camera_BPF2[:, :, (camera_BPF2.shape[2] if keep is None else keep) - 1]
-            cache = cache.replace(camera=jnp.broadcast_to(last, cache.camera.shape).astype(cache.camera.dtype))
+    def _with_latent(self, cache: kv_cache.DiTCache, x_in, keep: int | None) -> kv_cache.DiTCache:
+        """The cache with (camera warp) the latent of its newest kept frame (``keep`` new frames, default all)."""
         if self.cfg.dit.camera_warp_enabled:
             last = x_in[:, :, (x_in.shape[2] if keep is None else keep) - 1]
             cache = cache.replace(latent=jnp.broadcast_to(last, cache.latent.shape).astype(cache.latent.dtype))
@@ -803,21 +776,16 @@ class WorldDiT(nnx.Module):
         tokens = self.patch_embedding(xc.reshape((b * p,) + xc.shape[2:]))  # (B*P, F, h, w, D)
         tokens = tokens.reshape(b, p, f, -1, tokens.shape[-1])
         e = self.time_embedding(sinusoidal_embedding(t, self.cfg.dit.freq_dim).astype(dtype))  # (B, P, F, D)
-        if self.action_embedding is not None:
-            window_BPFE = jnp.concatenate([mouse_BPFWA, keyboard_BPFWA], axis=-1).reshape(b, p, f, -1)
-            e = e + self.action_embedding(window_BPFE.astype(dtype))
         e0 = self.time_projection(e).reshape(b, p, f, 6, -1)
         player = self.player_embed(jnp.arange(p))
         projected = None if context is None else self.img_emb(context.astype(dtype))
         cond_in = _Conditioning(e0, player, projected, mouse_BPFWA, keyboard_BPFWA)
         return cond_in, tokens, e
 
-    def _sequence_plan(self, frame_pos_F, frame_mask, kv_stop_F, num_players: int, camera=None) -> _SequencePlan:
+    def _sequence_plan(self, frame_pos_F, frame_mask, kv_stop_F, num_players: int) -> _SequencePlan:
         c, d = self.cfg, self.cfg.dit
         gh, gw = self._grid()
         angles = rope.rope_3d_angles_at(d.rope_split, d.rope_theta, frame_pos_F, gh, gw, num_players)
-        if camera is not None:
-            angles = angles[None] + rope.camera_rope_angles(d.rope_split, d.rope_theta, camera, gh, gw)
         block = num_players * gh * gw  # all players of a frame form one mask block
         frame_mask = None if frame_mask is None else jnp.asarray(frame_mask)
         token_mask = None if frame_mask is None else masks.expand_to_tokens(frame_mask, block)
@@ -828,9 +796,9 @@ class WorldDiT(nnx.Module):
             kv_stop_F, kv_stop_L)
 
     def _forward_sequence(self, x, t, cond, context, mouse_BPFWA, keyboard_BPFWA, frame_pos_F, frame_mask,
-                          kv_stop_F, attend=None, remat: bool = False, camera=None, prev=None) -> jax.Array:
+                          kv_stop_F, attend=None, remat: bool = False, prev=None) -> jax.Array:
         cond_in, tokens, e = self._prepare(x, t, cond, context, mouse_BPFWA, keyboard_BPFWA, prev)
-        plan = self._sequence_plan(frame_pos_F, frame_mask, kv_stop_F, x.shape[1], camera)
+        plan = self._sequence_plan(frame_pos_F, frame_mask, kv_stop_F, x.shape[1])
         if attend is not None:  # the self-attention brings its own mask; no dense token mask
             plan = plan._replace(token_mask=None, attend=attend)
 

@@ -20,9 +20,8 @@ Three caches per DiT (``DiTCache``), each with one entry per layer:
 | mouse | (layers, B * P * tokens, Na, window, Ka), heads-major | one per frame, per spatial location |
 | keyboard | (layers, B * P, Na, window, Ka), heads-major | one per frame |
 
-With camera RoPE (``DiTConfig.camera_rope``) the cache also carries ``camera``, the accumulated RoPE offset
-of the last cached frame, so the next frame's offset continues from it; with the camera warp
-(``DiTConfig.camera_warp``) ``latent``, the last cached frame's latent, which the next frame sees shifted.
+With the camera warp (``DiTConfig.camera_warp``) the cache also carries ``latent``, the last cached frame's
+latent, which the next frame sees shifted.
 
 Mouse/keyboard caches exist for every layer (uniform scan) but only the first ``num_action_blocks``
 layers touch them; the others stay empty.
@@ -65,9 +64,6 @@ class DiTCache:
     self_attn: KVCache
     mouse: KVCache
     keyboard: KVCache
-    # camera RoPE only (``DiTConfig.camera_rope``): (..., B, P, 2) accumulated (height, width) position offset of
-    # the last cached frame (every layer holds the same value); None otherwise
-    camera: jax.Array | None = None
     # camera warp only (``DiTConfig.camera_warp``): (..., B, P, h, w, C) the last cached frame's latent (as the
     # commit pass got it), the next frame's previous latent; None otherwise
     latent: jax.Array | None = None
@@ -98,7 +94,6 @@ def init_cache(cfg: WorldModelConfig, batch: int, dtype=None) -> DiTCache:
                           a.head_dim, dtype, layout="BNSK"),
         keyboard=empty_cache(layers, batch * players, cfg.dit.window, a.num_heads, a.keyboard_head_dim, dtype,
                              layout="BNSK"),
-        camera=jnp.zeros(layers + (batch, players, 2), jnp.float32) if cfg.dit.camera_rope_enabled else None,
         latent=jnp.zeros(layers + (batch, players, cfg.latent_height, cfg.latent_width, cfg.out_channels), jnp.float32)
         if cfg.dit.camera_warp_enabled else None,
     )

@@ -10,16 +10,8 @@ Both RoPEs rotate interleaved pairs ``(x[2k], x[2k+1])`` by an angle ``pos * inv
   same interleaved pairing): only the first ``rope_dims[0]`` dims rotate, by the frame index, with
   theta 256; the height/width parts have position 0 (identity).
 
-- Camera RoPE (ours, ``DiTConfig.camera_rope``; off in the official model): the (height, width) positions
-  of a player's tokens in latent frame i move by minus the player's accumulated camera turn times the
-  configured positions per degree (``camera_positions``), a per-(world, player, frame) offset added to the
-  3D angles (``camera_rope_angles``). A static scene then keeps its RoPE position while the camera turns
-  (content moves right in the view when the player turns left), so the attention that copies the previous
-  frame by relative position copies the world-aligned location.
-
-Angle builders return ``angles_LJ`` (L positions, J = K/2 pairs) or, with the camera offsets,
-``angles_BLJ``; ``apply_rope`` applies either to ``x_BLNK``. ``start_frame`` may be a traced scalar (the
-cached decode step).
+Angle builders return ``angles_LJ`` (L positions, J = K/2 pairs); ``apply_rope`` applies them to
+``x_BLNK``. ``start_frame`` may be a traced scalar (the cached decode step).
 """
 
 from __future__ import annotations
@@ -28,7 +20,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from solaris_env.world_model import camera
 
 
 def _inv_freq(num_pairs: int, theta: float) -> np.ndarray:
@@ -90,45 +81,15 @@ def temporal_rope_angles(rope_dims: tuple[int, int, int], theta: float, num_fram
     return temporal_rope_angles_at(rope_dims, theta, frame_positions(num_frames, start_frame))
 
 
-def camera_increments(turns_BPF2: jax.Array, camera_rope: tuple[float, float]) -> jax.Array:
-    """(B, P, F, 2) (height, width) position change of each latent frame over the previous one: minus the move
-    of the view's content (``camera.content_shift``) for the frame's turn (``camera.frame_turns``, degrees), at
-    ``camera_rope`` positions per degree."""
-    return -camera.content_shift(turns_BPF2, camera_rope)
-
-
-def camera_positions(base_BP2: jax.Array | None, increments_BPF2: jax.Array) -> jax.Array:
-    """(B, P, F, 2) accumulated (height, width) offsets: ``base`` (the frame before these, default 0) plus
-    the running sum of the increments."""
-    pos = jnp.cumsum(increments_BPF2, axis=2)
-    return pos if base_BP2 is None else pos + base_BP2[:, :, None].astype(jnp.float32)
-
-
-def camera_rope_angles(rope_split: tuple[int, int, int], theta: float, positions_BPF2: jax.Array, grid_h: int,
-                       grid_w: int) -> jax.Array:
-    """(B, F * P * h * w, J) angles to ADD to ``rope_3d_angles_at``'s for tokens packed (frame, player, h, w):
-    0 on the frame pairs, each player's height/width offset times the axis frequencies on the others."""
-    pf, ph, pw = rope_split
-    b, p, f, _ = positions_BPF2.shape
-    pos = positions_BPF2.astype(jnp.float32).transpose(0, 2, 1, 3)  # (B, F, P, 2)
-    ang = jnp.concatenate([jnp.zeros((b, f, p, pf), jnp.float32),
-                           pos[..., :1] * jnp.asarray(_inv_freq(ph, theta), jnp.float32),
-                           pos[..., 1:] * jnp.asarray(_inv_freq(pw, theta), jnp.float32)], axis=-1)  # (B, F, P, J)
-    ang = jnp.broadcast_to(ang[:, :, :, None], (b, f, p, grid_h * grid_w, pf + ph + pw))
-    return ang.reshape(b, f * p * grid_h * grid_w, pf + ph + pw)
-
-
 def apply_rope(x_BLNK: jax.Array, angles_LJ: jax.Array) -> jax.Array:
-    """Rotate pairs (x[2k], x[2k+1]) of every head by angles_LJ[l, k] (f32), cast back to x's dtype.
-    ``angles`` may also be (B, L, J), one table per batch row (camera RoPE)."""
+    """Rotate pairs (x[2k], x[2k+1]) of every head by angles_LJ[l, k] (f32), cast back to x's dtype."""
     *lead, length, heads, head_dim = x_BLNK.shape
-    per_row = angles_LJ.ndim == 3 and len(lead) == 1 and angles_LJ.shape[0] in (1, lead[0])
-    if angles_LJ.shape[-2:] != (length, head_dim // 2) or not (angles_LJ.ndim == 2 or per_row):
+    if angles_LJ.shape != (length, head_dim // 2):
         raise ValueError(f"angles shape {angles_LJ.shape} does not match x {x_BLNK.shape}: expected "
-                         f"({length}, {head_dim // 2}) or (B, {length}, {head_dim // 2})")
+                         f"({length}, {head_dim // 2})")
     pairs = x_BLNK.astype(jnp.float32).reshape(*lead, length, heads, head_dim // 2, 2)
     re, im = pairs[..., 0], pairs[..., 1]
-    cos = jnp.cos(angles_LJ)[..., None, :]  # (L, 1, J) or (B, L, 1, J): same rotation for every head
+    cos = jnp.cos(angles_LJ)[..., None, :]  # (L, 1, J): same rotation for every head
     sin = jnp.sin(angles_LJ)[..., None, :]
     out = jnp.stack([re * cos - im * sin, re * sin + im * cos], axis=-1)
     return out.reshape(x_BLNK.shape).astype(x_BLNK.dtype)

@@ -288,15 +288,10 @@ class Programs:
         i = ws.frame_index_B
         _, frame_key = jax.random.split(ws.key_B)
         z, k_renoise = self._noise(frame_key, ws.latent_BP1hwC.shape[0])
-        prev, t_prev = ws.latent_BP1hwC, self.cfg.sampler.context_noise
-        if t_prev:  # commit x_t of frame i - 1 instead of its x0 (SamplerConfig.context_noise)
-            sigma = t_prev / self.cfg.sampler.num_train_timesteps
-            eps = jax.random.normal(jax.random.fold_in(frame_key, 1), prev.shape, jnp.float32)
-            prev = (1.0 - sigma) * prev + sigma * eps
-        x = jnp.concatenate([prev, z], axis=1)  # (P, 2, h, w, C): [committed i - 1 ; noisy i]
+        x = jnp.concatenate([ws.latent_BP1hwC, z], axis=1)  # (P, 2, h, w, C): [committed i - 1 (x0) ; noisy i]
         cond = jnp.concatenate([self._cond_at(ws, i - 1), self._cond_at(ws, i)], axis=1)
         actions = jnp.concatenate([ws.actions_BPWA, actions_PkA.astype(jnp.float32)], axis=1)  # windows i-1, i
-        t = jnp.asarray([float(t_prev), self.timesteps[0]], jnp.float32)
+        t = jnp.asarray([0.0, self.timesteps[0]], jnp.float32)
         v, cache = dit[0].commit_denoise_step_cached(*self._dit_args(x, t, (cond, ws.context_kv, actions, ws.dit_cache),
                                                                      i - 1), layers=dit[1])
         return z, k_renoise, from_stream(self.cfg, v)[0], cache

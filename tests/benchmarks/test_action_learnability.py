@@ -41,8 +41,8 @@ def test_short_run_scores_every_variant(tmp_path):
 def test_variants_fix_both_settings_whatever_the_preset():
     """Regression: with the tiny preset's gain of 10, an empty "official" override trained gain 10."""
     for name, override in AL.VARIANTS.items():
-        assert set(override) == {"mouse_input_gain", "adaln_actions"}, name
-    assert AL.VARIANTS["official"] == {"mouse_input_gain": 1.0, "adaln_actions": False}
+        assert set(override) == {"mouse_input_gain"}, name
+    assert AL.VARIANTS["official"] == {"mouse_input_gain": 1.0}
 
 
 def test_bad_sizes_are_refused(tmp_path):

@@ -398,58 +398,6 @@ def test_mouse_input_gain_must_be_positive_and_finite(cfg2, gain):
         rescaled_mouse_kernel(jnp.ones((1, cfg2.mouse_in_dim, 4)), cfg2, gain)
 
 
-def _adaln_cfg(method: str = "attn"):
-    cfg = _cfg(players=2, method=method)
-    return cfg.replace(action=dataclasses.replace(cfg.action, adaln_actions=True))
-
-
-@pytest.fixture(scope="module")
-def adaln_model():
-    cfg = _adaln_cfg()
-    return cfg, _build(cfg, seed=11), _inputs(cfg, seed=11)  # every leaf random, the zero-init layer too
-
-
-def test_adaln_action_embedding_starts_at_zero_and_keeps_the_function(cfg2, model2, inp2):
-    """A fresh action embedding (last layer zero) added to trained weights changes no output."""
-    cfg = _adaln_cfg()
-    fresh = WorldDiT(cfg, rngs=nnx.Rngs(0)).action_embedding
-    assert float(jnp.abs(fresh.layers[-1].kernel[...]).max()) == 0.0
-    assert fresh.layers[0].kernel[...].shape == (cfg.action_window * cfg.action.action_dim, cfg.dit.dim)
-    graphdef, _ = nnx.split(nnx.eval_shape(lambda: WorldDiT(cfg, rngs=nnx.Rngs(0))))
-    state = nnx.state(nnx.clone(model2))
-    state["action_embedding"] = nnx.state(fresh)
-    with_path = nnx.merge(graphdef, state)
-    np.testing.assert_allclose(causal_fn(with_path, *_seq_args(inp2)), causal_fn(model2, *_seq_args(inp2)),
-                               atol=1e-6, rtol=0)
-
-
-def test_adaln_actions_reach_only_their_own_latent_frame(adaln_model):
-    """With the action module silenced (zero output projections), an action of frame k*i still changes latent
-    frame i through the adaLN path, and no earlier frame; no path -> no change at all."""
-    cfg, model, inp = adaln_model
-    quiet = nnx.clone(model)
-    for proj in (quiet.blocks.action_model.proj_mouse, quiet.blocks.action_model.proj_keyboard):
-        proj.kernel[...] = jnp.zeros_like(proj.kernel[...])
-    i, k, pad = 2, cfg.frames_per_step, cfg.action_left_padding
-    base = causal_fn(quiet, *_seq_args(inp))
-    for stream in ("mouse", "keyboard"):
-        moved = dict(inp, **{stream: inp[stream].at[:, :, k * i + pad].add(1.0)})
-        delta = jnp.abs(causal_fn(quiet, *_seq_args(moved)) - base).max(axis=(0, 1, 3, 4, 5))
-        assert float(delta[:i].max()) == 0.0 and float(delta[i]) > 1e-4, (stream, delta)
-    no_path = nnx.clone(quiet)
-    no_path.action_embedding.layers[-1].kernel[...] = jnp.zeros_like(no_path.action_embedding.layers[-1].kernel[...])
-    moved = dict(inp, mouse=inp["mouse"] + 1.0, keyboard=1.0 - inp["keyboard"])
-    np.testing.assert_array_equal(causal_fn(no_path, *_seq_args(moved)), causal_fn(no_path, *_seq_args(inp)))
-
-
-def test_adaln_cached_rollout_equals_teacher_forcing_and_causal(adaln_model):
-    cfg, model, inp = adaln_model
-    out = _rollout(cfg, model, inp)
-    np.testing.assert_allclose(out["denoise"], _teacher_forcing(model, inp), atol=TOL, rtol=0)
-    v_causal = causal_fn(model, *_seq_args(inp, "clean", jnp.zeros_like(inp["t"])))
-    np.testing.assert_allclose(out["commit"], v_causal, atol=TOL, rtol=0)
-
-
 # ---------------------------------------------------------------------------------------------
 # Validation and the concat variant
 # ---------------------------------------------------------------------------------------------
