@@ -20,7 +20,9 @@ _LAZY = {
     "DreamParallelEnv": "solaris_env.dream_env",
     "parallel_env": "solaris_env.dream_env",
     "DreamVectorEnv": "solaris_env.vector_env",
+    "WorldModel": "solaris_env.world_model.world_model",
 }
+__all__ = sorted(_LAZY)
 
 
 def __getattr__(name):

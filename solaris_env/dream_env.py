@@ -21,6 +21,7 @@ from pettingzoo import ParallelEnv
 from solaris_env.engine.bots.runner import PLAYER_NAMES
 from solaris_env.env_common import (
     PlayerViewsEnv,
+    available_render_modes,
     check_agent_actions,
     check_options,
     check_render_mode,
@@ -162,6 +163,7 @@ class DreamParallelEnv(PlayerViewsEnv, ParallelEnv):
         self.model = model if model is not None else build_model(checkpoint, preset, num_players, seed_model)
         self.num_players = check_model_players(self.model, num_players)
         self.max_steps, self.render_mode = max_steps, render_mode
+        self.metadata = {**type(self).metadata, "render_modes": available_render_modes()}
         self.height, self.width, _ = self.model.frame_shape
         self.frames_per_step = self.model.frames_per_step
         self.metadata = {**type(self).metadata, "render_fps": ENGINE_TICKS_PER_SECOND / self.frames_per_step}

@@ -28,6 +28,13 @@ def check_render_mode(render_mode: str | None) -> None:
                                "(or `solaris-env play`, which serves a local web page)")
 
 
+def available_render_modes() -> list[str]:
+    """The render modes that work on this machine: ``rgb_array`` always, ``human`` where a window can open. An
+    env's ``metadata["render_modes"]`` lists these, so checkers that try every listed mode (Gymnasium's
+    ``check_env``) pass on a headless machine; asking for ``human`` there still raises a clear error."""
+    return ["rgb_array"] + (["human"] if human_display_problem() is None else [])
+
+
 def human_display_problem() -> str | None:
     """Why an OpenCV window cannot be shown here, or None when it can."""
     if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):

@@ -28,6 +28,7 @@ from solaris_env.engine.trace import Trace
 from solaris_env.engine.worldgen import FLAT_VARIANTS, WorldConfig, generate
 from solaris_env.env_common import (
     PlayerViewsEnv,
+    available_render_modes,
     check_agent_actions,
     check_options,
     check_render_mode,
@@ -208,6 +209,7 @@ class RealParallelEnv(PlayerViewsEnv, ParallelEnv):
         self.ticks_per_step = int(ticks_per_step)
         self.metadata = {**type(self).metadata, "render_fps": 20 / self.ticks_per_step}
         self.render_mode = render_mode
+        self.metadata = {**type(self).metadata, "render_modes": available_render_modes()}
         self.height, self.width = h, w
         self.spawn_distance, self.view_distance, self.hud = spawn_distance, view_distance, hud
         self.task = make_task(task)

@@ -18,6 +18,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from solaris_env.env_common import available_render_modes
 from solaris_env.wrappers.opponents import Opponent, make_opponent
 
 
@@ -46,7 +47,7 @@ class SingleAgentEnv(gym.Env):
         self.observation_space = env.observation_space(self.agent)
         self.action_space = env.action_space(self.agent)
         self.render_mode = getattr(env, "render_mode", None)
-        self.metadata = {**getattr(env, "metadata", {}), "render_modes": ["rgb_array", "human"]}
+        self.metadata = {**getattr(env, "metadata", {}), "render_modes": available_render_modes()}
         self._obs: dict | None = None
 
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:

@@ -49,11 +49,17 @@ def test_registered_ids_make_single_agent_envs(model):
     assert isinstance(real.unwrapped.opponents["Bravo"], ScriptedBotOpponent)
 
 
-def test_gymnasium_check_env_dream_and_real(model):
+def test_gymnasium_check_env_dream_and_real_with_default_arguments_on_a_headless_machine(model, monkeypatch):
+    """check_env tries every render mode the env lists: a machine without a display lists only rgb_array."""
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # gymnasium warns about 32x32 frames being small for CNNs
-        gym_check_env(dream_single(model).unwrapped, skip_render_check=True)
-        gym_check_env(real_single().unwrapped, skip_render_check=True)
+        for env in (dream_single(model), real_single()):
+            assert env.unwrapped.metadata["render_modes"] == ["rgb_array"]
+            gym_check_env(env.unwrapped)
+    with pytest.raises(RuntimeError, match="no display"):
+        dream_single(model, render_mode="human")
 
 
 @pytest.mark.parametrize("kind", ["multidiscrete", "box"])
