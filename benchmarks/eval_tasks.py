@@ -3,16 +3,16 @@
     .venv/bin/solaris-engine collect --out data/eval_7001 --eval --episodes 16 --resolution 64 --seed 7001
     .venv/bin/python -m benchmarks.eval_tasks --data data/eval_7001          # ~45 min on 2 CPU cores (3 seeds x 112 episodes)
 
-Data: the 7 eval sets of ``solaris-engine collect --eval`` (engine-spec §2.7, §6), collected at the
+Data: the 7 eval sets of ``solaris-engine collect --eval`` (docs/engine.md §6), collected at the
 model's resolution with a seed no training set used (training data: seeds 0.., held-out: 99; we use
-7001). Tasks (engine-spec §7.5): Movement = translation + rotation, Grounding = oneLooksAway, Memory =
+7001). Tasks (docs/engine.md §7.5): Movement = translation + rotation, Grounding = oneLooksAway, Memory =
 bothLookAway, Building = structure, Consistency = turnToLook (same) + turnToLookOpposite.
 
-Protocol (engine-spec §7.4). Per episode the segment starts at ``s`` = the judge's ``frame1``
+Protocol (docs/engine.md §7.4). Per episode the segment starts at ``s`` = the judge's ``frame1``
 (``eval_protocol.eval_ids_row``: sneak_end + 25, both players on the same tick). The model gets each
 player's GT frame ``s + 1`` and the recorded actions of ticks ``s .. s + T - 1`` (T = 257 = 1 + 64 model
 steps of k = 4; action t pairs with frame t + 1, as in training) and generates T frames per player:
-generated frame j shows GT frame ``s + 1 + j``. Every judge query (engine-spec §7.2) is then asked about
+generated frame j shows GT frame ``s + 1 + j``. Every judge query (docs/engine.md §7.2) is then asked about
 generated frame ``g - s - 1`` instead of GT frame g (translation's first image, GT frame s, uses
 generated frame 0). Episodes are batched as B worlds per model call (the last batch padded by repeating
 an episode, whose output is dropped, so the model compiles once).
@@ -24,7 +24,7 @@ frame s + 1 the model is given), and ``concat`` (the Multiverse-style baseline; 
 seed (``--seeds``, default 0 1 2); the judge (the shipped probes) is deterministic, so ground truth and
 copy-first-frame have one distinct trial and std 0.
 
-Scores. Episode-level judge accuracy per eval type (all queries of an episode right, engine-spec §7.5)
+Scores. Episode-level judge accuracy per eval type (all queries of an episode right, docs/engine.md §7.5)
 and per task (the mean of its types), mean ± population std over trials. Fréchet distance per task
 (and per type): ALL T frames of both players of the task's episodes, generated vs the GT frames they
 show (s + 1 .. s + T), in judge features (``solaris_env.judges.features``: the penultimate activations
@@ -75,7 +75,7 @@ ROWS = ("default", "concat", "ground_truth", "copy_first_frame")
 NO_CHECKPOINT = "no checkpoint"
 
 # ---------------------------------------------------------------------------------------------
-# Segments (engine-spec §7.4)
+# Segments (docs/engine.md §7.4)
 # ---------------------------------------------------------------------------------------------
 
 
@@ -249,7 +249,8 @@ def score_trial(judge, segments: Sequence[Segment], frames) -> dict:
 
 def _mean_std(values: Sequence[float]) -> dict:
     v = np.asarray(values, np.float64)
-    return {"mean": float(v.mean()), "std": float(v.std()), "trials": [float(x) for x in v]}  # population std (§7.5)
+    # population std (docs/engine.md §7.5)
+    return {"mean": float(v.mean()), "std": float(v.std()), "trials": [float(x) for x in v]}
 
 
 def summarise_trials(trials: Sequence[dict]) -> dict:

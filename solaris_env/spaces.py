@@ -5,9 +5,9 @@ Three action representations meet here:
 * The **env action** (what agents send to ``step``): a dict with MineRL keys. 23 binary keys
   (``BINARY_KEYS``, each ``Discrete(2)``) plus ``camera`` = [dpitch, dyaw] in DEGREES, MineRL
   convention: positive pitch looks DOWN, positive yaw turns RIGHT.
-* The **Mineflayer** convention used by the engine and the recorded data (engine-spec §2.2):
+* The **Mineflayer** convention used by the engine and the recorded data (docs/actions.md §2):
   radians, +yaw = turn LEFT (counter-clockwise seen from above), +pitch = look UP.
-* The **model vector** (model-spec §8.1): float32 (25,) in ``MODEL_ACTION_KEYS`` order; dims 0..22
+* The **model vector** (docs/actions.md §4): float32 (25,) in ``MODEL_ACTION_KEYS`` order; dims 0..22
   are binary keyboard/mouse-button flags, dims 23/24 are cameraX (yaw) / cameraY (pitch) in
   the Mineflayer sign convention, in degrees before ``camera_linear`` and scaled after it.
 
@@ -43,7 +43,7 @@ ACTION_KEYS = BINARY_KEYS + (CAMERA_KEY,)
 CAMERA_LIMIT_DEG = 180.0  # env camera bound per step, both axes, inclusive
 
 # ---------------------------------------------------------------------------------------------
-# Model action vector (model-spec §8.1)
+# Model action vector (docs/actions.md §4)
 # ---------------------------------------------------------------------------------------------
 
 MODEL_ACTION_KEYS = (
@@ -69,13 +69,13 @@ CAMERA_SCALE_DEG = 15.0
 # Recorded data formats
 # ---------------------------------------------------------------------------------------------
 
-# engine-spec §3.1: the 24 keys of a Mineflayer record's "action" object, in emitted order.
+# docs/actions.md §6.1: the 24 keys of a Mineflayer record's "action" object, in emitted order.
 RECORDED_ACTION_KEYS = (
     "forward", "back", "left", "right", "jump", "sprint", "sneak", "camera",
     "attack", "use", "mount", "dismount", "place_block", "place_entity", "mine",
 ) + HOTBAR_KEYS
 
-# engine-spec §3.2: recorded boolean key -> model key it switches on (OR-combined).
+# docs/actions.md §6.2: recorded boolean key -> model key it switches on (OR-combined).
 RECORDED_TO_MODEL = {
     "forward": "forward", "back": "back", "left": "left", "right": "right",
     "jump": "jump", "sprint": "sprint", "sneak": "sneak",
@@ -85,7 +85,7 @@ RECORDED_TO_MODEL = {
     **{k: k for k in HOTBAR_KEYS},
 }
 
-# model-spec §8.1: VPT keyboard key -> model key. Keys not listed are ignored.
+# docs/actions.md §7.1: VPT keyboard key -> model key. Keys not listed are ignored.
 VPT_KEY_TO_MODEL = {
     "key.keyboard.escape": "ESC", "key.keyboard.s": "back", "key.keyboard.q": "drop",
     "key.keyboard.w": "forward", "key.keyboard.e": "inventory", "key.keyboard.space": "jump",
@@ -288,7 +288,7 @@ def env_actions_to_model_vectors(actions: Sequence[Mapping[str, Any]]) -> np.nda
 
 
 # ---------------------------------------------------------------------------------------------
-# Mineflayer records (engine-spec §3) -> model vectors
+# Mineflayer records (docs/actions.md §6) -> model vectors
 # ---------------------------------------------------------------------------------------------
 
 
@@ -312,7 +312,7 @@ def _record_to_vector(record: Mapping[str, Any], index: int) -> np.ndarray:
 def mineflayer_records_to_vectors(records: Sequence[Mapping[str, Any]]) -> np.ndarray:
     """Reference ``convert_act_slice_mineflayer``: T per-tick records -> float32 (T, 25).
 
-    Mapping (engine-spec §3.2): attack/mine -> attack (19); use/mount/place_block/place_entity
+    Mapping (docs/actions.md §6.2): attack/mine -> attack (19); use/mount/place_block/place_entity
     -> use (20); dismount -> sneak (16); hotbar.k -> 1+k; camera [dyaw, dpitch] radians ->
     dims 23/24 in degrees with no sign change. No ``camera_linear`` is applied. Each record's
     ``action`` must hold exactly ``RECORDED_ACTION_KEYS``; violations raise ValueError naming
@@ -323,7 +323,7 @@ def mineflayer_records_to_vectors(records: Sequence[Mapping[str, Any]]) -> np.nd
 
 
 # ---------------------------------------------------------------------------------------------
-# VPT JSONL (model-spec §8.1) -> model vectors
+# VPT JSONL (docs/actions.md §7) -> model vectors
 # ---------------------------------------------------------------------------------------------
 
 

@@ -1,4 +1,4 @@
-"""Eval episodes (engine-spec §6) recorded by our bots, checked with the judge's frame logic (§7.1-§7.4).
+"""Eval episodes (docs/engine.md §6) recorded by our bots, checked with the judge's frame logic (§7.1-§7.4).
 
 The first half unit-tests ``eval_protocol`` on hand-made record lists; the second runs each of the 7
 eval types for a few episode numbers and checks the sneak-signal protocol and the judge's queries.

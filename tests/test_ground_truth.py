@@ -2,7 +2,7 @@
 
 For the eval tasks whose question is about the other player's visibility or screen position, the
 sidecar computed from the renderer's avatar-id buffer must give the expected answer at the frames
-the judge queries (engine-spec §7.2) — the property that makes our GT column meaningful. Rendered
+the judge queries (docs/engine.md §7.2) — the property that makes our GT column meaningful. Rendered
 at 64x64 (square frames of the 16:9 window, the tiny model's resolution).
 """
 

@@ -15,7 +15,7 @@ from solaris_env.engine import recorder as rec
 from solaris_env.engine.bots.runner import EpisodeConfig, run_episode
 from solaris_env.engine.capture import REGION_LEFT_MAX_U, REGION_RIGHT_MIN_U, ground_truth, screen_region
 
-# Spec name patterns (engine-spec §2.6, §2.7).
+# Layout name patterns (docs/data-format.md §2, §5).
 TRAIN_RE = re.compile(r"batch_\d+_\d{6}_(Alpha|Bravo)_instance_\d{3}(\.mp4|\.json|_episode_info\.json)")
 EVAL_RE = re.compile(r"\d{6}_(Alpha|Bravo)_instance_\d{3}(_camera\.mp4|\.json)")
 SIDECAR_RE = re.compile(r"(batch_\d+_)?\d{6}_instance_\d{3}_groundtruth\.json")

@@ -1,6 +1,6 @@
-"""Tests for the 14 training episode types (engine-spec §5): each runs to its end on both world kinds,
+"""Tests for the 14 training episode types (docs/engine.md §5): each runs to its end on both world kinds,
 records well-formed actions for both players, and does what its type is about (move, build, mine,
-fight); sampling weights and spawn distances match the §5.1 table; episodes are deterministic."""
+fight); sampling weights and spawn distances match the §5.2 table; episodes are deterministic."""
 
 import functools
 import json
@@ -17,7 +17,7 @@ WORLD_KINDS = ("flat", "normal")
 MAX_CAMERA_RAD = 0.15 + 1e-5  # per-tick rotation cap (3 rad/s); float32 camera round trip
 IDLE_TICKS = 20
 
-# engine-spec §5.1: type -> (category, typical s, P %, spawn min, spawn max)
+# docs/engine.md §5.2: type -> (category, typical s, P %, spawn min, spawn max)
 SPEC_TABLE = {
     "buildHouse": ("Building", 120, 3.44, 10, 20),
     "buildStructure": ("Building", 15, 9.73, 8, 15),

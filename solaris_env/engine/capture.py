@@ -11,7 +11,7 @@ is a player index.
 
 The ground truth (:func:`ground_truth`) says, per frame and viewer, where every other player is on
 screen (from the renderer's avatar-id buffer, so occlusion by blocks is exact), plus the poses and the
-block edits. Frame t shows state s_t (engine-spec §10.2), the same state as record t's pose.
+block edits. Frame t shows state s_t (docs/engine.md §4.3), the same state as record t's pose.
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ if TYPE_CHECKING:
     from solaris_env.engine.render import Renderer, Views
 
 # Screen regions by the centroid's horizontal coordinate u in [0, 1] (0 = left edge): thirds, the
-# split the rotation judge's "left" / "center" / "right" answers refer to (engine-spec §7.2).
+# split the rotation judge's "left" / "center" / "right" answers refer to (docs/engine.md §7.2).
 REGION_LEFT_MAX_U = 1.0 / 3.0  # u < this -> "left"
 REGION_RIGHT_MIN_U = 2.0 / 3.0  # u >= this -> "right"; otherwise "center"
 REGION_NONE = "none"  # the other player covers no pixel

@@ -7,11 +7,12 @@
 
 Training episodes are numbered 0..N-1; episode e runs on instance ``offset + e mod --instances``
 (flat surface variant = instance mod 5; ``--world mixed`` = flat on even instances, normal on odd
-ones) and is written as batch ``--seed``. Eval episodes follow the reference (engine-spec §2.7): per
+ones) and is written as batch ``--seed``. Eval episodes follow the reference (docs/data-format.md §5): per
 type, flat-world types run on 2 instances with ids 0..ceil(N/2)-1 each, normal-world types
 (turnToLook*) on 1 instance with ids 0..N-1. After an eval collect, ``eval/eval_ids_<Type>.json``
 (rows ``[ep, s1, s1+257, s2, s2+257]``, s = the judge's frame1 = end of the first sneak run + 25,
-§7.1/§7.4) and ``eval/structure_building_summary.json`` (§7.3) are rebuilt from everything on disk.
+docs/engine.md §7.1/§7.4) and ``eval/structure_building_summary.json`` (docs/engine.md §7.3) are rebuilt
+from everything on disk.
 Every frame shows a 16:9 game window (70 deg vertical FOV, ~102 deg horizontal) resampled to the
 requested size (``RenderConfig.display_aspect``), so square frames such as 64x64 keep the reference's
 field of view and rotationEval's 40 deg turn leaves the other player on screen.
@@ -36,10 +37,10 @@ import traceback
 from dataclasses import dataclass
 from pathlib import Path
 
-# The 7 eval sets of the paper (engine-spec §2.7, §6).
+# The 7 eval sets of the paper (docs/engine.md §6, docs/data-format.md §5).
 SPEC_EVAL_TYPES = ("rotationEval", "translationEval", "structureEval", "bothLookAwayEval", "oneLooksAwayEval",
                    "turnToLookEval", "turnToLookOppositeEval")
-DEFAULT_EVAL_EPISODES = 32  # pairs per eval type (§2.7)
+DEFAULT_EVAL_EPISODES = 32  # pairs per eval type (docs/data-format.md §5)
 EVAL_INSTANCES_FLAT = 2  # flat-world eval types: 2 instances x N/2 episodes
 EVAL_INSTANCES_NORMAL = 1  # turnToLook*: 1 normal-world instance x N episodes
 MAX_CHUNK_TICKS = 32  # auto --chunk-ticks: at most this many ticks per renderer call (bigger batches were
@@ -198,8 +199,8 @@ def run_jobs(jobs: list[Job], workers: int) -> list[dict]:
 def write_eval_bookkeeping(out: Path, types: list[str]) -> None:
     """Rebuild ``eval_ids_<Type>.json`` for each type and the structure summary from the files on disk.
 
-    Row ids are indices in the loader's sorted ``*_Alpha_*.mp4`` glob (§2.8); starts are the judge's
-    frame1 (``eval_protocol.eval_ids_row``). The summary comes from the sidecars' episode_info dicts.
+    Row ids are indices in the loader's sorted ``*_Alpha_*.mp4`` glob (docs/data-format.md §7.1); starts are the
+    judge's frame1 (``eval_protocol.eval_ids_row``). The summary comes from the sidecars' episode_info dicts.
     """
     from solaris_env.engine.eval_protocol import eval_ids_row, structure_summary
 

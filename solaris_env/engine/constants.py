@@ -1,7 +1,7 @@
 """Game constants of the voxel engine, in Minecraft units (blocks, ticks at 20 Hz, radians).
 
 Values follow vanilla Minecraft (Java 1.21) player physics so that recorded motion matches the
-statistics of the paper's data (engine-spec §10.8: walk ~4.317 b/s, sprint ~5.612, sneak ~1.3).
+statistics of the paper's data (docs/engine.md §3.1: walk ~4.317 b/s, sprint ~5.612, sneak ~1.3).
 """
 
 import math

@@ -1,13 +1,13 @@
-"""The VLM judge's frame bookkeeping over recorded eval episodes (engine-spec §7.1-§7.4).
+"""The VLM judge's frame bookkeeping over recorded eval episodes (docs/engine.md §7.1-§7.4).
 
-Everything here reads only the per-tick record dicts the recorder writes (engine-spec §2.2; only
+Everything here reads only the per-tick record dicts the recorder writes (docs/data-format.md §3.2; only
 ``record["action"]`` is used): ``camera`` = [dyaw, dpitch] radians in Mineflayer's convention
 (+yaw = turned LEFT, +pitch = looked UP) and the boolean keys. It reproduces which frames the judge
 shows to the VLM and what answer it expects, so that our engine's eval recordings can be checked
 against the judge before any video is rendered, and so that eval segment rows (``eval_ids``) start
 exactly at the judge's ``frame1``.
 
-Conventions (engine-spec §7.1):
+Conventions (docs/engine.md §7.1):
 
 * ``sneak_end(records)`` is already ``frame1``: the last index of the FIRST contiguous sneak run plus
   ``SNEAK_FRAME_START_DELAY`` (25). In our engine that is the last idle record before the scripted
@@ -31,7 +31,7 @@ STRUCTURE_MAX_OFFSET = 240  # structure's query frame is capped at frame1 + 240
 TRANSLATION_FRAME2_OFFSET = 40  # translation's second frame = first movement record + 40
 MOVE_KEYS = ("forward", "back", "left", "right")
 
-# Eval type -> the result-directory key of engine-spec §7.4 (also the PROMPTS key).
+# Eval type -> the result-directory key of docs/engine.md §7.2 (also the PROMPTS key).
 EVAL_KEYS = {
     "translationEval": "translation",
     "rotationEval": "rotation",
@@ -48,7 +48,7 @@ _TURN_TO_LOOK_PROMPT = (
     "answer based on the content of the screenshots, not just the camera angles."  # no space before "Answer": as in the judge
     'Answer with a single word: "yes", "no".'
 )
-# The exact prompt strings of engine-spec §7.2, keyed like EVAL_KEYS' values.
+# The exact prompt strings of docs/engine.md §7.2, keyed like EVAL_KEYS' values.
 PROMPTS = {
     "translation": (
         "Here are Minecraft screenshots showing another player on the screen. Between the first frame and the second "
@@ -98,7 +98,7 @@ def is_noop(action: Mapping, eps: float = CAMERA_EPS) -> bool:
 
 
 # ---------------------------------------------------------------------------------------------
-# Frame bookkeeping (engine-spec §7.1)
+# Frame bookkeeping (docs/engine.md §7.1)
 # ---------------------------------------------------------------------------------------------
 
 
@@ -171,7 +171,7 @@ def first_movement(records: Sequence[Mapping], start: int) -> tuple[int, str] | 
 
 
 # ---------------------------------------------------------------------------------------------
-# Per-task queries (engine-spec §7.2)
+# Per-task queries (docs/engine.md §7.2)
 # ---------------------------------------------------------------------------------------------
 
 
@@ -293,7 +293,7 @@ def _turn_to_look(records_by_bot, key, expected: str) -> list[Query]:
 
 def query_frames(eval_type: str, records_by_bot: Mapping[str, Sequence[Mapping]],
                  structure_summary: Mapping | None = None) -> list[Query]:
-    """The judge's queries for one episode (engine-spec §7.2 table).
+    """The judge's queries for one episode (docs/engine.md §7.2 table).
 
     Args:
         eval_type: one of ``EVAL_KEYS`` (e.g. ``"rotationEval"``).
@@ -325,7 +325,7 @@ def query_frames(eval_type: str, records_by_bot: Mapping[str, Sequence[Mapping]]
 
 
 # ---------------------------------------------------------------------------------------------
-# Eval segment rows (engine-spec §2.8, §7.4) and the structure summary (§7.3)
+# Eval segment rows (docs/engine.md §7.4, docs/data-format.md §5.2) and the structure summary (§7.3)
 # ---------------------------------------------------------------------------------------------
 
 

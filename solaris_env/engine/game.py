@@ -1,7 +1,7 @@
 """The game: a world and its players, advanced one 20 Hz tick at a time from per-player actions.
 
 Players act only through the env action space (MineRL keys, ``solaris_env/spaces.py``). Each tick
-also yields what a Mineflayer recorder would have written for that player (engine-spec §3.1): the
+also yields what a Mineflayer recorder would have written for that player (docs/engine.md §3.3): the
 held movement keys, the camera rotation actually applied (radians, Mineflayer convention), and the
 one-tick event flags (``attack`` on an entity hit, ``place_block`` after a placement, ``hotbar.k`` on
 a slot change) plus the sustained ``mine`` while a dig is in progress.
@@ -42,7 +42,7 @@ class Hit:
 class TickEvents:
     """What happened to one player during one tick."""
 
-    record: dict  # the 24-key Mineflayer action record of engine-spec §3.1
+    record: dict  # the 24-key Mineflayer action record of docs/actions.md §6.1
     placed: list[tuple[int, int, int, int]] = field(default_factory=list)  # (x, y, z, block)
     mined: list[tuple[int, int, int, int]] = field(default_factory=list)  # (x, y, z, block that was there)
     hit_player: int | None = None
@@ -205,7 +205,7 @@ class Game:
         block = self.world.get(*hit.block)
         if hit.block != p.dig_pos:
             p.dig_pos, p.dig_progress = hit.block, 0
-        ev.record["mine"] = True  # sustained while a dig is in progress (engine-spec §3.1)
+        ev.record["mine"] = True  # sustained while a dig is in progress (docs/engine.md §3.3)
         needed = int(BREAK_TICKS[block])
         if needed < 0:
             return  # unbreakable: keeps digging forever, as in vanilla

@@ -24,7 +24,7 @@ _STEP_DOWN = 0.6  # drop that sneaking refuses to walk off (vanilla maxUpStep)
 
 @dataclass
 class Player:
-    """One player's state. Angles use Mineflayer's convention (engine-spec §2.2): yaw 0 = north
+    """One player's state. Angles use Mineflayer's convention (docs/engine.md §1.2): yaw 0 = north
     (-Z), +yaw = turned left (CCW seen from +Y), pitch + = looking up."""
 
     name: str

@@ -1,13 +1,13 @@
 """Recorder: writes one finished episode in the paper's dataset layouts, atomically and resumably.
 
-Training layout (engine-spec §2.6, the output of ``split_train_test.py``)::
+Training layout (docs/data-format.md §2, the output of ``split_train_test.py``)::
 
     OUT/duet/{train|test}/batch_<b>_<ep:06d>_<Bot>_instance_<iii>.mp4
                           batch_<b>_<ep:06d>_<Bot>_instance_<iii>.json               (record array)
                           batch_<b>_<ep:06d>_<Bot>_instance_<iii>_episode_info.json
                           batch_<b>_<ep:06d>_instance_<iii>_groundtruth.json         (our judges' sidecar)
 
-Eval layout (§2.7)::
+Eval layout (docs/data-format.md §5)::
 
     OUT/eval/<Type>/test/<ep:06d>_<Bot>_instance_<iii>_camera.mp4
                          <ep:06d>_<Bot>_instance_<iii>.json
@@ -46,7 +46,7 @@ import numpy as np
 if TYPE_CHECKING:
     from solaris_env.engine.bots.runner import EpisodeOutput
 
-VIDEO_FPS = 20  # engine-spec §2.5: aligned videos are 20 fps mp4v
+VIDEO_FPS = 20  # docs/data-format.md §3.1: 20 fps mp4v, as the reference's aligned videos
 VIDEO_FOURCC = "mp4v"
 DEFAULT_TEST_FRACTION = 0.01
 STAGING_DIR = ".staging"

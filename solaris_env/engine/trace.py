@@ -4,7 +4,7 @@ Simulation (physics, bots) and rendering are decoupled: the runner steps the gam
 state of every tick here; the capture step renders all frames later in large batches (which is what
 makes collection fast) by replaying the block edits on the initial world.
 
-Frame/action pairing (engine-spec §10.2): frame t = render(s_t), record t = the action applied during
+Frame/action pairing (docs/engine.md §4.3): frame t = render(s_t), record t = the action applied during
 s_t -> s_{t+1}; an edit made during step t is therefore first visible in frame t + 1.
 """
 

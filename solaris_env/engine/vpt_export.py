@@ -6,7 +6,7 @@ Every bot recording ``duet/<split>/<stem>.mp4`` + ``<stem>.json`` becomes one VP
 ``vpt/<split>/engine/<stem>.mp4`` (hard link, or a copy across file systems / with ``link=False``) +
 ``engine/<stem>.jsonl`` (one JSON object per tick), listed in ``vpt/<split>/episodes_info.json`` =
 ``{"num_episodes", "episodes": [{"video_path", "actions_path", "length", "episode_id"}]}`` (paths
-relative to the split dir, ids = positions in the sorted list; model-spec §8.3).
+relative to the split dir, ids = positions in the sorted list; docs/data-format.md §6).
 
 Alignment: the Duet mp4 already has VPT's alignment (frame t shows the state before tick t's action,
 so frame t + 1 is its effect and a loader reads frames start+1 .. stop for ticks start .. stop-1);
@@ -96,7 +96,7 @@ def _vpt_inventory(record: Mapping[str, Any]) -> list[dict]:
 
 
 def records_to_vpt_ticks(records: Sequence[Mapping[str, Any]]) -> list[dict]:
-    """One episode's Mineflayer records (engine-spec §2.2) -> VPT JSONL tick objects (see module doc)."""
+    """One episode's Mineflayer records (docs/data-format.md §3.2) -> VPT JSONL tick objects (see module doc)."""
     ticks = []
     mouse_x, mouse_y = SCREEN_CENTER
     prev_keys: list[str] = []

@@ -1,6 +1,6 @@
 """Seeded world generators: ``flat`` (superflat, five surface variants) and ``normal`` (terrain).
 
-Both return a :class:`World` whose box is centred on x = z = 0. Layouts follow engine-spec §4:
+Both return a :class:`World` whose box is centred on x = z = 0. Layouts follow docs/engine.md §2.3-§2.4:
 superflat = bedrock 1, stone, dirt 2, surface 1 with the surface block at y = 63 (feet at y = 64);
 the variant is picked by ``instance mod 5`` (plains/grass, windswept_hills/grass, snowy_plains/snow,
 desert/sand, desert/red_sand). ``normal`` is value-noise hills with a sea level, sand shores, snowy

@@ -1,4 +1,4 @@
-"""Judges of the paper's evaluation (engine-spec §7): small CNN probes trained on engine ground truth.
+"""Judges of the paper's evaluation (docs/engine.md §7): small CNN probes trained on engine ground truth.
 
 The paper's judge is a cloud VLM; ours are five probes, one per question (``questions.QUESTIONS``:
 visible, position, motion, structure, same_scenery), trained on engine frames with the labels of

@@ -2,7 +2,7 @@
 
 Finds every ``*_groundtruth.json`` under a ``solaris-engine collect`` output (the eval layout
 ``eval/<Type>/test/<ep>_instance_<iii>_groundtruth.json`` and the training layout
-``duet/<split>/batch_<b>_<ep>_instance_<iii>_groundtruth.json``, engine-spec §2.6-§2.7) and pairs it
+``duet/<split>/batch_<b>_<ep>_instance_<iii>_groundtruth.json``, docs/data-format.md §2, §5) and pairs it
 with each bot's records (``.json``) and video (``_camera.mp4`` for eval, ``.mp4`` for training).
 """
 
@@ -65,7 +65,7 @@ class Episode:
         return self.directory / f"{self.bot_stem(bot)}{suffix}"
 
     def queries(self) -> list[Query]:
-        """The judge's queries (engine-spec §7.2); empty for training episodes."""
+        """The judge's queries (docs/engine.md §7.2); empty for training episodes."""
         return query_frames(self.episode_type, self.records) if self.is_eval else []
 
 

@@ -1,9 +1,9 @@
-"""Score recorded eval episodes with a judge, episode-level as the paper (engine-spec §7.5).
+"""Score recorded eval episodes with a judge, episode-level as the paper (docs/engine.md §7.5).
 
     python -m solaris_env.judges.evaluate --data DIR                       # the shipped probes
     python -m solaris_env.judges.evaluate --data DIR --judge vlm --endpoint http://host:8000 --model NAME
 
-``DIR`` is a ``solaris-engine collect --eval`` output; every query of engine-spec §7.2 is asked about
+``DIR`` is a ``solaris-engine collect --eval`` output; every query of docs/engine.md §7.2 is asked about
 the ground-truth videos. Prints (and with ``--out`` writes) per eval type the episode-level accuracy
 and per task (Movement, Grounding, Memory, Building, Consistency) the mean over its types.
 The VLM judge reads its API key, if any, from the environment variable named by ``--api-key-env``.

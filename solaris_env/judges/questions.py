@@ -1,4 +1,4 @@
-"""The five judge questions of the paper's evaluation (engine-spec §7.2) and which eval type asks which.
+"""The five judge questions of the paper's evaluation (docs/engine.md §7.2) and which eval type asks which.
 
 A question fixes how many images it looks at, its answer vocabulary (the exact words the paper's VLM
 is asked to answer with), and which prompt of ``eval_protocol.PROMPTS`` a VLM judge gets. The probe
@@ -64,13 +64,13 @@ QUESTIONS: dict[str, Question] = {q.name: q for q in (
     Question("same_scenery", ("no", "yes"), 2, "turn_to_look"),
 )}
 
-# Eval type -> the question its queries ask (through the prompt key of engine-spec §7.2).
+# Eval type -> the question its queries ask (through the prompt key of docs/engine.md §7.2).
 _PROMPT_QUESTION = {"translation": "motion", "rotation": "position", "one_looks_away": "visible",
                     "both_look_away": "visible", "structure": "structure", "turn_to_look": "same_scenery",
                     "turn_to_look_opposite": "same_scenery"}
 EVAL_TYPE_QUESTION: dict[str, str] = {etype: _PROMPT_QUESTION[key] for etype, key in EVAL_KEYS.items()}
 
-# The paper's five tasks (engine-spec §7.5): a task's accuracy is the mean of its eval types' accuracies.
+# The paper's five tasks (docs/engine.md §7.5): a task's accuracy is the mean of its eval types' accuracies.
 TASKS: dict[str, tuple[str, ...]] = {
     "Movement": ("translationEval", "rotationEval"),
     "Grounding": ("oneLooksAwayEval",),

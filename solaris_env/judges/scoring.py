@@ -1,4 +1,4 @@
-"""Episode-level scoring of the paper (engine-spec §7.5, the paper's appendix "Evaluation Details").
+"""Episode-level scoring of the paper (docs/engine.md §7.5, the paper's appendix "Evaluation Details").
 
 An episode counts as accurate iff the judge's answer matches the expected answer at every query of
 the episode, over all query points and perspectives (Memory: 2 points x 2 players = 4 queries;

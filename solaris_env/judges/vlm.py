@@ -2,7 +2,7 @@
 
     python -m solaris_env.judges.evaluate --data DIR --judge vlm --endpoint http://localhost:8000 --model NAME
 
-The paper's judge (engine-spec §7.2) called ``gemini-3-flash-preview`` with the system instruction
+The paper's judge (docs/engine.md §7.2) called ``gemini-3-flash-preview`` with the system instruction
 below, the image(s) as PNG first and the prompt after, and counted an answer correct iff
 ``answer.strip().lower()`` equals the expected word; 429 responses were tried 3 times (retries after 2 and
 4 s) and API errors were left out of the results. Here the same content goes to

@@ -1,4 +1,4 @@
-"""The per-player action module (model-spec §4; Matrix-Game 2.0 design).
+"""The per-player action module (docs/model.md §4; Matrix-Game 2.0 design).
 
 It runs per player (players folded into the batch: B' = B * P) on tokens ``x_BFLD`` (F latent frames,
 L spatial tokens) and adds two residuals:

@@ -3,7 +3,7 @@
 ``attention`` is the one place a kernel is chosen (``cfg.dit.attention_impl``); model code never
 branches on the platform. ``attention_heads_major`` is the decode step's form (plain XLA ops: several
 key blocks, heads-major keys, no concatenation). Norms compute their statistics in f32 and cast back
-(model-spec §2.1-§2.2).
+(docs/model.md §3.3-§3.4).
 """
 
 from __future__ import annotations

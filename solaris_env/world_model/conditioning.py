@@ -1,4 +1,4 @@
-"""First-frame conditioning (model-spec §5.4): the ``cond`` channels concatenated to the DiT's noisy latent.
+"""First-frame conditioning (docs/model.md §5.4): the ``cond`` channels concatenated to the DiT's noisy latent.
 
 For one player with first frame ``first_frame_BHWC`` (in [-1, 1]) and F latent frames,
 ``cond_BFhwC = concat([mask_BFhwM, img_BFhwc], -1)`` with C = M + z_dim (4 + 16 = 20 for solaris) and:

@@ -3,8 +3,8 @@
 Every size the code needs is a field here or a property derived from fields in exactly one place
 (tokens per frame, cache length, action window, RoPE split, ...). Presets:
 
-- ``solaris``: the official full-size layout (model-spec §1, §4, §7): 1.82 B stored DiT parameters.
-- ``tiny``: our CPU default, 64x64 frames (sized from stack.md measurements).
+- ``solaris``: the official full-size layout (docs/model.md §2.2-§2.3): 1.82 B stored DiT parameters.
+- ``tiny``: our CPU default, 64x64 frames (sized from the measurements in docs/model.md §10.2).
 - ``test``: a micro model for unit tests (compiles in well under a second).
 """
 
@@ -30,7 +30,7 @@ def _require(cond: bool, msg: str) -> None:
 
 @dataclass(frozen=True, slots=True)
 class DiTConfig:
-    """The causal video DiT (model-spec §1-§2)."""
+    """The causal video DiT (docs/model.md §3)."""
 
     dim: int = 1536
     num_layers: int = 30
@@ -46,8 +46,8 @@ class DiTConfig:
     multiplayer: str = "attn"  # "attn" = Solaris (joint self-attention), "concat" = players stacked in channels
     max_players: int = 2  # rows of the learned player embedding
     attention_impl: str = "xla"  # the only implementation today; model code never branches on platform
-    context_norm_eps: float = 1e-5  # the two LayerNorms of img_emb (model-spec §2 step 3)
-    dtype: str = "float32"  # compute dtype (bf16 is slower than f32 on our CPUs, stack.md)
+    context_norm_eps: float = 1e-5  # the two LayerNorms of img_emb (docs/model.md §3.2 step 3)
+    dtype: str = "float32"  # compute dtype (bf16 is slower than f32 on our CPUs, docs/model.md §10.1)
     param_dtype: str = "float32"
     # Camera warp (ours; (0, 0) = off, the official model): the previous latent frame, its content moved by the
     # frame's camera turn times these (height, width) latent pixels per degree (``camera.shift_latents``), joins
@@ -76,7 +76,7 @@ class DiTConfig:
 
     @property
     def rope_split(self) -> tuple[int, int, int]:
-        """Complex pairs per axis (frame, height, width): 22/21/21 for head_dim 128 (model-spec §2.3)."""
+        """Complex pairs per axis (frame, height, width): 22/21/21 for head_dim 128 (docs/model.md §3.5)."""
         pairs = self.head_dim // 2
         hw = pairs // 3
         return (pairs - 2 * hw, hw, hw)
@@ -84,7 +84,7 @@ class DiTConfig:
 
 @dataclass(frozen=True, slots=True)
 class ActionConfig:
-    """The per-player action module (model-spec §4, Matrix-Game 2.0 design)."""
+    """The per-player action module (docs/model.md §4, Matrix-Game 2.0 design)."""
 
     keyboard_dim: int = 23
     mouse_dim: int = 2
@@ -168,7 +168,7 @@ class RefinerConfig:
 
 @dataclass(frozen=True, slots=True)
 class VAEConfig:
-    """A Wan-style causal video VAE (model-spec §7.1). ``temporal_downsample[i]`` says whether stage i
+    """A Wan-style causal video VAE (docs/model.md §7.1). ``temporal_downsample[i]`` says whether stage i
     halves time; the spatial factor is 2 ** (len(dim_mult) - 1)."""
 
     base_dim: int = 96
@@ -253,7 +253,7 @@ class VAEConfig:
 
 @dataclass(frozen=True, slots=True)
 class ImageEncoderConfig:
-    """A ViT over the first frame whose tokens feed the cross-attention (model-spec §7.2).
+    """A ViT over the first frame whose tokens feed the cross-attention (docs/model.md §7.2).
 
     ``blocks_applied`` reproduces the official quirk: only the first block of the 32 runs.
     """
@@ -293,7 +293,7 @@ class ImageEncoderConfig:
 
 @dataclass(frozen=True, slots=True)
 class SamplerConfig:
-    """Few-step flow-matching samplers (model-spec §5.3)."""
+    """Few-step flow-matching samplers (docs/model.md §5.3)."""
 
     ar_timesteps: tuple[int, ...] = (1000, 750, 500, 250)
     num_train_timesteps: int = 1000
@@ -451,7 +451,7 @@ class WorldModelConfig:
     @classmethod
     def tiny(cls, **override) -> "WorldModelConfig":
         """CPU default: 64x64 frames -> 8x8x16 latents, patch 2 -> 16 tokens/player/frame, d=256, 8 layers.
-        stack.md: d256/L8 with 16 tokens trains at ~1.4 s/step (B=8, 8 latent frames, P=2) on 2 cores,
+        docs/model.md §10.2: d256/L8 with 16 tokens trains at ~1.4 s/step (B=8, 8 latent frames, P=2) on 2 cores,
         ~2x faster than patch 1 (64 tokens) at the same width, which leaves room for stage 4.
         VAE: the decoder dominates an env step (benchmarks/model_step.py). Measured decode_step of one
         latent frame for 2 players (8 frames of 64x64): base 32 / mult (1,2,2,4) 16.8 GFLOP, 130 ms;

@@ -1,4 +1,4 @@
-"""The multiplayer video DiT (model-spec §2-§3): velocity prediction in VAE latent space.
+"""The multiplayer video DiT (docs/model.md §3): velocity prediction in VAE latent space.
 
 The network knows nothing about noise schedules or sampling; it maps noisy latents, timesteps on the
 0..1000 scale, first-frame conditioning, image-encoder tokens and actions to a velocity.
@@ -16,7 +16,7 @@ A action channels, W action window. Inputs of every entry point:
 | mouse | (B, P, T_pad, mouse channels) | left-padded actions, T_pad = k*(F-1) + action_window |
 | keyboard | (B, P, T_pad, keyboard channels) | same alignment (see ``action_module``) |
 
-The ``concat`` variant (§3.2) is the same network with one stream player and players stacked in
+The ``concat`` variant (docs/model.md §3.7) is the same network with one stream player and players stacked in
 channels; ``to_stream`` / ``from_stream`` convert (B, num_players, ...) tensors.
 
 Modes are entry points: ``forward_bidirectional``, ``forward_causal``, ``forward_teacher_forcing`` and
@@ -318,7 +318,7 @@ class CrossAttention(_QKVProjection):
 
 
 class DiTBlock(nnx.Module):
-    """adaLN block (model-spec §2.1): player embedding, modulated self-attention, cross-attention,
+    """adaLN block (docs/model.md §3.3): player embedding, modulated self-attention, cross-attention,
     action module (blocks < num_action_blocks only), modulated FFN.
 
     Args:
@@ -419,7 +419,7 @@ class DiTBlock(nnx.Module):
 
 
 class ImageContextProjection(nnx.Module):
-    """``img_emb``: LayerNorm -> Linear -> GELU(tanh) -> Linear -> LayerNorm, per player (model-spec §2 step 3)."""
+    """``img_emb``: LayerNorm -> Linear -> GELU(tanh) -> Linear -> LayerNorm, per player (docs/model.md §3.2)."""
 
     def __init__(self, cfg: WorldModelConfig, *, rngs: nnx.Rngs):
         d, cw, eps = cfg.dit, cfg.context_width, cfg.dit.context_norm_eps
@@ -461,7 +461,7 @@ class Head(nnx.Module):
 
 
 class WorldDiT(nnx.Module):
-    """The Solaris DiT. Parameter names follow the official checkpoint tree (model-spec §1.1).
+    """The Solaris DiT. Parameter names follow the official checkpoint tree (docs/model.md §9.2).
 
     Args:
         cfg: world-model config; ``cfg.dit.multiplayer`` picks ``attn`` (players on their own axis,
@@ -511,7 +511,7 @@ class WorldDiT(nnx.Module):
 
     def forward_teacher_forcing(self, clean, noisy, t_clean, t_noisy, cond, context, mouse, keyboard, *,
                                 kv_grad: bool = True, remat: bool = True) -> jax.Array:
-        """One pass over ``[clean ; noisy]`` with the teacher-forcing mask and per-half RoPE (model-spec
+        """One pass over ``[clean ; noisy]`` with the teacher-forcing mask and per-half RoPE (docs/model.md
         §6.3). Noisy frame i sees clean frames (i-W, i) and itself, exactly like a cached decode step.
         ``kv_grad=False`` stops the gradient through the clean half's keys/values. Returns v of the
         noisy half, shaped like ``noisy``.

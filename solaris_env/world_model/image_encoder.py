@@ -1,4 +1,4 @@
-"""The first-frame image encoder: a CLIP ViT vision tower (model-spec §7.2).
+"""The first-frame image encoder: a CLIP ViT vision tower (docs/model.md §7.2).
 
 Frames (B, H, W, 3) in [-1, 1] -> tokens (B, num_tokens, width), un-pooled: CLS + one token per patch.
 

@@ -1,4 +1,4 @@
-"""Rolling key/value caches for the cached decode step (model-spec §5.2).
+"""Rolling key/value caches for the cached decode step (docs/model.md §5.2).
 
 A cache is plain data (``flax.struct.dataclass``); functions return new caches, nothing mutates.
 ``KVCache`` holds ``k``/``v`` of shape ``(..., B, S, N, K)`` (``layout="BSNK"``, S = cache slots) or

@@ -1,4 +1,4 @@
-"""Attention masks as pure functions of integers (model-spec §5.1).
+"""Attention masks as pure functions of integers (docs/model.md §5.1).
 
 Every mask is a boolean NumPy array, True = "query may attend to key". Masks are built at frame level
 (one row/column per latent frame) and expanded to tokens with ``expand_to_tokens``. A frame block holds

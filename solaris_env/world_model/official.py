@@ -1,4 +1,4 @@
-"""The official VAE and CLIP checkpoints (``vae.pt``, ``clip.pt``; model-spec §7, §9) <-> our modules.
+"""The official VAE and CLIP checkpoints (``vae.pt``, ``clip.pt``; docs/model.md §9.2-§9.3) <-> our modules.
 
 Both are orbax ``StandardCheckpointer`` directories holding the NNX state of the reference modules
 (``WanVAE_`` and ``CLIPModel`` of solaris-wm/solaris@0be45a8, built by ``model_loaders.py``). Their key

@@ -1,4 +1,4 @@
-"""Rotary position embeddings (model-spec §2.3 and §4.2 step 5).
+"""Rotary position embeddings (docs/model.md §3.5 and §4.2).
 
 Both RoPEs rotate interleaved pairs ``(x[2k], x[2k+1])`` by an angle ``pos * inv_freq[k]``, in f32:
 

@@ -1,4 +1,4 @@
-"""Few-step flow-matching samplers (model-spec §5.3): x0-prediction with fresh-noise re-noising.
+"""Few-step flow-matching samplers (docs/model.md §5.3): x0-prediction with fresh-noise re-noising.
 
 The model predicts a velocity ``v`` with ``x_t = (1 - sigma) * x0 + sigma * eps`` and ``v = eps - x0``
 (sigma = t / num_train_timesteps, t on the 0..1000 scale). Every step of a schedule
@@ -9,7 +9,7 @@ The model predicts a velocity ``v`` with ``x_t = (1 - sigma) * x0 + sigma * eps`
     z  = (1 - sigma_{s+1}) * x0 + sigma_{s+1} * N(0, I)    # FRESH noise, not the previous eps
 
 so after the last step (sigma_n = 0) ``z == x0`` exactly. This is the DMD / consistency-style sampler
-of the reference, NOT an Euler ODE solver (model-spec §13.6).
+of the reference, NOT an Euler ODE solver (docs/model.md §5.3).
 
 A sampler takes a denoiser, never the reverse: ``denoise_fn(x_t, t) -> v`` is any callable (the DiT's
 ``decode_step`` closed over its cache and conditioning, a fake predictor in tests, ...); ``t`` is a
@@ -32,7 +32,7 @@ from solaris_env.world_model.config import SamplerConfig
 
 DenoiseFn = Callable[[jax.Array, jax.Array], jax.Array]
 
-# The reference's hard-coded 10-step bidirectional list (model-spec §5.3). It is not the shift-5 N-step
+# The reference's hard-coded 10-step bidirectional list (docs/model.md §5.3). It is not the shift-5 N-step
 # formula: it is floor(shifted_schedule(10, 5/3)) (tested).
 REFERENCE_BIDIRECTIONAL_10 = (1000, 937, 869, 795, 714, 625, 526, 416, 294, 156, 0)
 

@@ -1,4 +1,4 @@
-"""Wan2.1-style causal video VAE (model-spec §7.1).
+"""Wan2.1-style causal video VAE (docs/model.md §7.1).
 
 Video ``x_BTHWC`` in [-1, 1] with T = 1 + tf * (F - 1) frames <-> latents ``z_BFhwc`` with
 h = H / sf, w = W / sf (tf = ``cfg.temporal_factor``, sf = ``cfg.spatial_factor``; 4 and 8 for solaris).

@@ -6,7 +6,7 @@
     frames_BPkHW3, state = model.step(state, actions_BPk25)  # k = model.frames_per_step
     state = model.reset_worlds(state, done_B, new_first_frames_BPHW3)
 
-Frame 0 (model-spec §5.4). As in the reference, latent frame 0 is *generated* from noise conditioned
+Frame 0 (docs/model.md §5.4). As in the reference, latent frame 0 is *generated* from noise conditioned
 on the first frame (mask + its VAE encoding + image-encoder tokens), not copied. The causal VAE decodes
 latent frame 0 to ONE video frame and every later latent frame to k frames, so ``init`` generates,
 decodes latent frame 0 (its commit is left to the first ``step``) and stores that frame in ``state.frame0_BPHW3`` (uint8); every
@@ -22,7 +22,7 @@ Actions. ``actions_BPk25`` of step n are the model's 25-dim vectors (keyboard 23
 mouse yaw/pitch after ``camera_linear``; ``spaces.env_action_to_model_vector``) of video frames
 k*(n-1)+1 .. k*n. The state keeps the last ``action_window`` actions as a rolling buffer, initialised
 with ``first_actions`` (default: all zeros, "no-op") repeated: exactly the reference's left padding
-(model-spec §4.3), so latent frame i sees actions k*i - action_window + 1 .. k*i, clamped at 0.
+(docs/model.md §4.3), so latent frame i sees actions k*i - action_window + 1 .. k*i, clamped at 0.
 
 One step = few-step sampling of latent frame i (``sampler.sample_frame`` over ``cfg.sampler``
 timesteps, x0 prediction + fresh noise; the DiT's passes against the rolling KV cache, update
@@ -126,12 +126,12 @@ def steady_cond_index(vae: VAEConfig) -> int:
 
 
 def frames_to_model(frames_uint8: jax.Array) -> jax.Array:
-    """uint8 [0, 255] -> f32 [-1, 1] (model-spec §8.4)."""
+    """uint8 [0, 255] -> f32 [-1, 1] (docs/model.md §7.3)."""
     return frames_uint8.astype(jnp.float32) / 127.5 - 1.0
 
 
 def frames_to_uint8(video: jax.Array) -> jax.Array:
-    """[-1, 1] -> uint8 by clip(((x + 1) / 2) * 255) and truncation (model-spec §7.1)."""
+    """[-1, 1] -> uint8 by clip(((x + 1) / 2) * 255) and truncation (docs/model.md §7.3)."""
     return jnp.clip((video.astype(jnp.float32) + 1.0) * 127.5, 0.0, 255.0).astype(jnp.uint8)
 
 

@@ -15,7 +15,7 @@ _cache = os.environ.get("SOLARIS_JAX_CACHE", str(Path.home() / ".cache" / "solar
 if _cache:
     jax.config.update("jax_compilation_cache_dir", _cache)
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
-torch.set_num_threads(1)  # stack.md: small torch ops are far faster single-threaded on these VMs
+torch.set_num_threads(1)  # docs/model.md §10.2: small torch ops are far faster single-threaded on these VMs
 
 SMALL = 36  # the smallest frame SB3's CNN takes; the real env renders it fast
 

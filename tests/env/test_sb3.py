@@ -9,7 +9,7 @@ from solaris_env.spaces import FlatActionCodec
 from solaris_env.wrappers.opponents import NoopOpponent
 from solaris_env.wrappers.sb3 import SB3VecEnv
 
-torch.set_num_threads(1)  # stack.md: small torch ops are far faster single-threaded on these VMs
+torch.set_num_threads(1)  # docs/model.md §10.2: small torch ops are far faster single-threaded on these VMs
 
 
 def test_slots_and_episode_end_conventions(vector):

@@ -1,4 +1,4 @@
-"""First-frame conditioning (model-spec §5.4): Wan mask layout, gray padding, streaming == full."""
+"""First-frame conditioning (docs/model.md §5.4): Wan mask layout, gray padding, streaming == full."""
 
 import jax
 import jax.numpy as jnp

@@ -1,5 +1,5 @@
 """The DiT: official parameter tree, and the equalities that tie masks, RoPE offsets and caches together
-(model-spec §5.3 / §12): cached rollout == teacher forcing, commit passes == causal forward.
+(docs/model.md §5.3 / §11.1): cached rollout == teacher forcing, commit passes == causal forward.
 
 All numerics run in f32 on the ``test`` preset (window 2 < 4 frames) with randomised weights (the head
 is zero-initialised, so an untouched model would predict exactly 0 everywhere).

@@ -1,4 +1,4 @@
-"""ImageEncoder (model-spec §7.2): CLIP ViT tower, the blocks_applied quirk, preprocessing."""
+"""ImageEncoder (docs/model.md §7.2): CLIP ViT tower, the blocks_applied quirk, preprocessing."""
 
 import dataclasses
 import math

@@ -1,4 +1,4 @@
-"""Rolling KV cache (model-spec §5.2; reference test_kv_cache_analysis)."""
+"""Rolling KV cache (docs/model.md §5.2; reference test_kv_cache_analysis)."""
 
 import dataclasses
 import itertools

@@ -1,4 +1,4 @@
-"""Masks checked exhaustively against brute-force loops (model-spec §5.1, §12)."""
+"""Masks checked exhaustively against brute-force loops (docs/model.md §5.1, §11.1)."""
 
 import itertools
 

@@ -1,4 +1,4 @@
-"""Official VAE / CLIP checkpoints (model-spec §7, §9): the key mapping covers the reference trees exactly,
+"""Official VAE / CLIP checkpoints (docs/model.md §9.3): the key mapping covers the reference trees exactly,
 and an official-layout orbax checkpoint written from our modules loads back to identical outputs."""
 
 import dataclasses
@@ -74,7 +74,7 @@ def assert_same_params(a, b):
 def test_vae_mapping_is_the_reference_tree():
     fixture = read_tree("vae-param-tree.txt")
     assert official.official_vae_tree(SOLARIS.vae) == fixture  # keys, shapes and dtypes, incl. the 2 rng leaves
-    assert count(fixture) == 126_892_533  # model-spec (the key counts as one element)
+    assert count(fixture) == 126_892_533  # docs/model.md §2.3 (the key counts as one element)
     abstract = nnx.eval_shape(lambda: CausalVideoVAE(SOLARIS.vae, rngs=nnx.Rngs(0)))
     leaf_map = official.vae_leaf_map(SOLARIS.vae)
     assert len({o for o, _, _ in leaf_map.values()}) == len(leaf_map) == len(fixture) - 2  # a bijection

@@ -1,4 +1,4 @@
-"""3D RoPE and the action module's temporal RoPE (model-spec §2.3, §4.2; reference test_rope_consistency)."""
+"""3D RoPE and the action module's temporal RoPE (docs/model.md §3.5, §4.2; reference test_rope_consistency)."""
 
 import jax
 import jax.numpy as jnp

@@ -1,4 +1,4 @@
-"""Few-step samplers (model-spec §5.3): schedules and the x0-prediction + fresh-noise re-noising rule."""
+"""Few-step samplers (docs/model.md §5.3): schedules and the x0-prediction + fresh-noise re-noising rule."""
 
 import ast
 import pathlib

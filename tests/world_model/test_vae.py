@@ -1,4 +1,4 @@
-"""CausalVideoVAE (model-spec §7.1): shapes, causality, streaming == cacheless, normalisation, training."""
+"""CausalVideoVAE (docs/model.md §7.1): shapes, causality, streaming == cacheless, normalisation, training."""
 
 import dataclasses
 
@@ -52,7 +52,7 @@ def video():
 
 def test_solaris_preset_param_count():
     abstract = nnx.eval_shape(lambda: CausalVideoVAE(WorldModelConfig.solaris().vae, rngs=nnx.Rngs(0)))
-    # model-spec: 126,892,533 state leaves; the reference's shared dropout Rngs adds 2 scalars (key, count).
+    # docs/model.md §2.3: 126,892,533 state leaves; the reference's shared dropout Rngs adds 2 scalars (key, count).
     assert num_params(abstract) == 126_892_531
 
 

@@ -1,5 +1,5 @@
 """The streaming WorldModel API: shapes, determinism, per-world reset, flat memory, input checks, and the
-streaming step == an offline rollout written here with the DiT's decode_step (model-spec §5.3-§5.4, §10).
+streaming step == an offline rollout written here with the DiT's decode_step (docs/model.md §5.3-§5.5).
 
 Models use the ``test`` preset with random non-degenerate weights (the real init's zero head would make
 every velocity 0 and the sampler trivial).
@@ -299,8 +299,9 @@ def _frame_noise(keys_B, shape, num_steps):
 
 
 def offline_rollout(model, rollout):
-    """The model-spec rollout written out pass by pass (separate denoise and commit passes, whole-video
-    conditioning); the commit of frame i - 1 (its clean x0, t = 0) happens before frame i."""
+    """The reference rollout (docs/model.md §5.5) written out pass by pass (separate denoise and commit
+    passes, whole-video conditioning); the commit of frame i - 1 (its clean x0, t = 0) happens before
+    frame i."""
     cfg, ff = rollout["cfg"], rollout["ff"]
     num_frames = rollout["latents"].shape[2]
     p, (h, w, _) = model.num_players, model.frame_shape

@@ -6,7 +6,7 @@ compose with ``yield from``; those that can fail *return* a bool. This mirrors t
 engine's async Mineflayer episode handlers one-to-one while staying a pure per-tick policy: the bot
 reads the game state (privileged, like a Mineflayer bot) but acts only through the action space.
 
-Shared randomness (engine-spec §5.1): every bot holds its own copy of ``shared_rng`` seeded
+Shared randomness (docs/engine.md §5.1): every bot holds its own copy of ``shared_rng`` seeded
 identically, so decisions both bots must agree on are drawn in the same order on both; ``rng`` is
 the bot's private randomness (``Math.random()`` in the reference).
 """
@@ -673,7 +673,7 @@ class Bot:
         return msg if msg is not None and msg["sender"] != self.name else None
 
     def sneak_signal(self) -> Actions:
-        """The eval signal (engine-spec §6): sneak 5 ticks, release, idle 25 ticks; sets ``start_tick``."""
+        """The eval signal (docs/engine.md §6.1): sneak 5 ticks, release, idle 25 ticks; sets ``start_tick``."""
         yield from self.hold(5, sneak=1)
         yield from self.idle(25)
         self.start_tick = self.tick

@@ -1,4 +1,4 @@
-"""The 7 eval episode types (engine-spec §6) with the sneak-signal protocol (§6, §7.1).
+"""The 7 eval episode types (docs/engine.md §6) with the sneak-signal protocol (§6.1, §7.1).
 
 Every eval recording looks like: 1 s idle (the runner's pre-roll) -> phase barrier -> both bots look
 at each other (constant rate, no easing) -> barrier -> the acting bot(s) sneak 5 ticks and idle 25
@@ -47,7 +47,7 @@ def _turn_to(bot: Bot, yaw: float, pitch: float) -> Actions:
 
 
 # ---------------------------------------------------------------------------------------------
-# rotationEval (§6.1)
+# rotationEval (docs/engine.md §6.2)
 # ---------------------------------------------------------------------------------------------
 
 ROTATION_CASES = (40.0, -40.0, 180.0)  # degrees, Mineflayer sign (+ = left)
@@ -69,7 +69,7 @@ def rotation_eval(bot: Bot) -> Actions:
 
 
 # ---------------------------------------------------------------------------------------------
-# translationEval (§6.2)
+# translationEval (docs/engine.md §6.2)
 # ---------------------------------------------------------------------------------------------
 
 WALK_DISTANCE = (6.0, 9.0)  # blocks, U(min, max)
@@ -111,7 +111,7 @@ def translation_eval(bot: Bot) -> Actions:
 
 
 # ---------------------------------------------------------------------------------------------
-# oneLooksAwayEval (§6.3) / bothLookAwayEval (§6.4)
+# oneLooksAwayEval / bothLookAwayEval (docs/engine.md §6.2)
 # ---------------------------------------------------------------------------------------------
 
 LOOK_AWAY_FREEZE_TICKS = 60
@@ -149,7 +149,7 @@ def both_look_away_eval(bot: Bot) -> Actions:
 
 
 # ---------------------------------------------------------------------------------------------
-# structureEval (§6.5)
+# structureEval (docs/engine.md §6.2)
 # ---------------------------------------------------------------------------------------------
 
 STRUCTURE_TYPES = ("wall_2x2", "wall_4x1", "tower_2x1")
@@ -310,7 +310,7 @@ def structure_eval(bot: Bot) -> Actions:
 
 
 # ---------------------------------------------------------------------------------------------
-# turnToLookEval / turnToLookOppositeEval (§6.6)
+# turnToLookEval / turnToLookOppositeEval (docs/engine.md §6.2)
 # ---------------------------------------------------------------------------------------------
 
 TP_POINT_COUNT = 55  # the reference's tp_points list length; the point is tp_points[N mod 55]

@@ -1,4 +1,4 @@
-"""Episode types: their constants (engine-spec §5.1 table, §6) and the weighted sampler.
+"""Episode types: their constants (docs/engine.md §5.2 table, §6.2) and the weighted sampler.
 
 An episode type is a :class:`EpisodeSpec`: spawn distances, typical length, an optional ``setup``
 hook (items and teleports before recording) and ``behaviour(bot)``, the per-bot choreography.
@@ -94,7 +94,7 @@ def sampling_weights(types: list[str] | None = None) -> dict[str, float]:
 
 
 def sample_type(rng: np.random.Generator, types: list[str] | None = None) -> str:
-    """Cumulative sampling with one draw of the shared RNG (engine-spec §5.1)."""
+    """Cumulative sampling with one draw of the shared RNG (docs/engine.md §5.2)."""
     weights = sampling_weights(types)
     u, acc = rng.random(), 0.0
     for name, w in weights.items():

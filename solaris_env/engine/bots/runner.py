@@ -1,6 +1,6 @@
 """Runs one episode: world, spawn, setup, then all bots tick by tick until they finish.
 
-Lifecycle (engine-spec §4): a fresh seeded world; players spread ``spawn_min..spawn_max`` apart on
+Lifecycle (docs/engine.md §5.1): a fresh seeded world; players spread ``spawn_min..spawn_max`` apart on
 the surface; setup (64 stone and diamond tools, an empty hand, facing each other, type-specific
 items); recording starts with 1 s of idle; the choreographies run with phase barriers; the episode
 ends when every bot has finished (or aborts for both when one fails, or at ``max_s``).
@@ -147,7 +147,7 @@ def inventory_record(p: Player) -> dict:
 
 
 def make_record(game: Game, i: int, action_record: dict, t: int, cfg: EpisodeConfig, pose: tuple) -> dict:
-    """A per-tick record in the act_recorder layout (engine-spec §2.2)."""
+    """A per-tick record in the act_recorder layout (docs/data-format.md §3.2)."""
     p = game.players[i]
     x, y, z, yaw, pitch = pose
     render_ms = EPOCH_BASE_MS + cfg.episode * EPISODE_EPOCH_STRIDE_MS + t * C.TICK_MS

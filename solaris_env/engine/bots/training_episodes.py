@@ -1,4 +1,4 @@
-"""The 14 training episode types (engine-spec §5.2), as per-bot choreographies.
+"""The 14 training episode types (docs/engine.md §5.3), as per-bot choreographies.
 
 Each type is a generator ``behaviour(bot)`` run by both bots, plus an optional ``setup(bot)`` that hands
 out items (and, for placeAndMine, re-teleports) before recording starts. Decisions both bots must agree
@@ -33,7 +33,7 @@ from solaris_env.engine.physics import Player, pitch_to, yaw_to
 from solaris_env.engine.world import World
 from solaris_env.engine.worldgen import WorldConfig
 
-# Common constants (engine-spec §5.1).
+# Common constants (docs/engine.md §5.2).
 JUMP_PROB = 0.25
 CAMERA_DPS = 60.0  # lookAtSmooth speed
 BOT_LOOK_DPS = 90.0  # lookAtBot speed
@@ -1142,7 +1142,7 @@ def place_and_mine(bot: Bot) -> Actions:
 
 
 # ---------------------------------------------------------------------------------------------
-# Registry (engine-spec §5.1: typical length, spawn distance min/max)
+# Registry (docs/engine.md §5.2: typical length, spawn distance min/max)
 # ---------------------------------------------------------------------------------------------
 
 register(EpisodeSpec("buildHouse", "Building", 120, 10, 20, build_house, _house_setup))

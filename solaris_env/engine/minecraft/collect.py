@@ -39,8 +39,8 @@ EVAL_TYPES = ("bothLookAwayEval", "oneLooksAwayEval", "rotationEval", "structure
 DISPLAY_ASPECT = 16 / 9
 FOV_DEG = 70.0
 SERVER_READY_S = 60.0
-DEFAULT_SPAWN = (10.0, 15.0)  # engine-spec §4: MIN/MAX_BOTS_DISTANCE
-# Spawn distances where the spec's differ from the default (§5.1 table, §6); placeAndMine and turnToLook*
+DEFAULT_SPAWN = (10.0, 15.0)  # the reference's MIN/MAX_BOTS_DISTANCE (docs/engine.md §5.1)
+# Spawn distances where the spec's differ from the default (docs/engine.md §5.2, §6.2); placeAndMine and turnToLook*
 # place the bots 4 blocks apart themselves (episodes.js planEpisode).
 SPAWN = {"buildStructure": (8.0, 15.0), "buildTower": (8.0, 15.0), "pvp": (8.0, 15.0), "placeAndMine": (4.0, 4.0),
          "rotationEval": (10.0, 12.0), "translationEval": (10.0, 12.0), "oneLooksAwayEval": (10.0, 12.0),

@@ -1,4 +1,4 @@
-// Episode choreographies of the real-Minecraft backend (engine-spec §5.2, §6), mirroring the voxel
+// Episode choreographies of the real-Minecraft backend (docs/engine.md §5.3, §6), mirroring the voxel
 // engine's Python bots (solaris_env/engine/bots/) so that both backends record comparable episodes:
 // same phases, durations, distances, shared draws, eval bookkeeping and sneak signal.
 //
@@ -49,7 +49,7 @@ const FIGHT_RANGE = 3.0
 const BODY_AIM_HEIGHT = 1.2
 // Neighbour directions (support block -> placed cell), the block below first.
 const FACE_NORMALS = [[0, 1, 0], [1, 0, 0], [-1, 0, 0], [0, 0, 1], [0, 0, -1], [0, -1, 0]]
-// Items every bot gets before recording (§4 step 3), in hotbar order; type-specific items follow.
+// Items every bot gets before recording (docs/engine.md §5.1 step 4), in hotbar order; type-specific items follow.
 const COMMON_ITEMS = [['stone', 64], ['diamond_pickaxe', 1], ['diamond_shovel', 1], ['diamond_axe', 1]]
 const SWORDS = ['wooden_sword', 'stone_sword', 'iron_sword', 'golden_sword', 'diamond_sword', 'netherite_sword']
 
@@ -246,7 +246,7 @@ function * track (ctx, n, dps, until = null) {
   }
   return false
 }
-/** The eval signal (§6): sneak 5 ticks, release, idle 25 ticks; sets startTick. */
+/** The eval signal (docs/engine.md §6.1): sneak 5 ticks, release, idle 25 ticks; sets startTick. */
 function * sneakSignal (ctx) {
   yield * idle(ctx, 5, { sneak: true })
   yield * idle(ctx, 25)
@@ -379,7 +379,7 @@ function * randomWalk (ctx, dist) {
 const decidePrimary = (ctx) => ctx.sortedNames[Math.floor(ctx.shared() * 2)] === ctx.name
 
 // ---------------------------------------------------------------------------------------------
-// Training types (§5.2)
+// Training types (docs/engine.md §5.3)
 // ---------------------------------------------------------------------------------------------
 function * walkLook (ctx) {
   for (let it = 0; it < 3; it++) {
@@ -647,7 +647,7 @@ function * placeAndMine (ctx) {
 }
 
 // ---------------------------------------------------------------------------------------------
-// Eval types (§6): look at each other, barrier, the actor(s) sneak, act, pad to 300 ticks
+// Eval types (docs/engine.md §6): look at each other, barrier, the actor(s) sneak, act, pad to 300 ticks
 // ---------------------------------------------------------------------------------------------
 function * lookAtEachOther (ctx, phase, dps = EVAL_DPS) {
   yield * barrier(ctx, `${phase}_phase`, { pos: me(ctx).position.clone() })

@@ -34,7 +34,7 @@ function log (msg) { process.stderr.write(`[record] ${msg}\n`) }
 function fail (msg) { log(`FAILED: ${msg}`); process.exit(1) }
 const sleep = (ms) => new Promise(resolve => setTimeout(resolve, ms))
 
-// The episode choreographies (engine-spec §5-§6) and the spawn/item plan live in episodes.js.
+// The episode choreographies (docs/engine.md §5-§6) and the spawn/item plan live in episodes.js.
 const { EPISODES, EVAL_TYPES, planEpisode, yawTo, pitchTo } = require('./episodes')
 
 // ---------------------------------------------------------------------------------------------

@@ -1,4 +1,4 @@
-"""Raw tick rows of ``record.js`` -> Mineflayer action records (engine-spec §2.2/§3.1) and the sidecar.
+"""Raw tick rows of ``record.js`` -> Mineflayer action records (docs/data-format.md §3.2) and the sidecar.
 
 A raw row is what the recorder saw on one physics tick of one bot: the pose of the state it rendered
 (``x y z yaw pitch``, Mineflayer convention, radians), the yaw/pitch right after this tick's look
@@ -51,7 +51,7 @@ def camera_delta(row: Mapping) -> list[float]:
 
 
 def action_record(row: Mapping) -> dict:
-    """The 24-key ``action`` object of one raw row (§3.1): sustained keys from the held controls,
+    """The 24-key ``action`` object of one raw row (docs/actions.md §6.1): sustained keys from the held controls,
     once flags true when the event happened on this tick, ``mine`` sustained, ``hotbar.k`` on a change."""
     controls, events = row["controls"], row.get("events", {})
     for k in CONTROL_KEYS:
@@ -73,7 +73,8 @@ def action_record(row: Mapping) -> dict:
 
 
 def build_records(rows: Sequence[Mapping], episode: int) -> list[dict]:
-    """Per-tick records in the act_recorder layout (§2.2) from one bot's raw rows, in tick order."""
+    """Per-tick records in the act_recorder layout (docs/data-format.md §3.2) from one bot's raw rows, in tick
+    order."""
     out = []
     t0 = None
     last_rt = None

@@ -28,7 +28,7 @@ const serv = mcServer.createMCServer({
   version: cfg.version
 })
 
-// The reference gives every bot resistance 255 (engine-spec §4): hits knock back but never hurt, so
+// The reference gives every bot resistance 255 (docs/engine.md §9): hits knock back but never hurt, so
 // pvp bouts never kill. flying-squid has no such effect; keep every player's health full instead.
 serv.on('newPlayer', (player) => {
   const updateHealth = player.updateHealth
