@@ -454,7 +454,7 @@ class WorldModel:
         return cls(config, *modules)
 
     def with_sampler(self, sampler: SamplerConfig) -> "WorldModel":
-        """The same weights (shared, not copied) under another sampler config: timesteps, context noise."""
+        """The same weights (shared, not copied) under another sampler config: timesteps, action guidance."""
         new = object.__new__(type(self))
         config = dataclasses.replace(self._cfg, sampler=sampler)
         new._setup(config, Programs(config, self.programs.graphdefs), self._step_params)
