@@ -138,7 +138,9 @@ def make_start_states(count: int, seed: int, world: str = "flat", resolution: in
         turn = noop()
         turn[CAMERA_KEY] = np.array([0.0, np.random.default_rng(seed + i).uniform(-max_turn_deg, max_turn_deg)],
                                     np.float32)
-        env.step({LEARNER: turn, PARTNER: noop()})
+        # one engine tick with the whole turn, on the game itself: the env would spread a turn over 8.59 deg
+        # ticks (spaces.step_ticks) and carry the rest, which a snapshot does not hold
+        env.game.step([turn if name == LEARNER else noop() for name in env.possible_agents])
         states.append(env.engine_state())
     return states
 

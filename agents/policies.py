@@ -19,7 +19,9 @@ MineRL dict of ``solaris_env.spaces``).
   ``agents/ppo_real.py`` (its ``.json`` sidecar gives the action encoding and the observation size).
 
 ``make_policy(spec)`` builds one from those strings (``POLICIES`` lists the kinds). Camera turns stay within
-the world model's +-20 degrees per tick (``spaces.CAMERA_CLIP_DEG``) so a policy means the same in both envs.
++-20 degrees per step (``spaces.CAMERA_CLIP_DEG``), which a dream step of k = 4 frames and the real env at
+``ticks_per_step=4`` turn in full (up to 4 x 8.59 deg, ``spaces.CAMERA_TICK_LIMIT_DEG``; more would be carried
+over to the next steps, the same in both envs).
 """
 
 from __future__ import annotations
@@ -62,8 +64,7 @@ def _check_noise(noise: float) -> float:
 
 def _check_turn(deg: float, name: str) -> float:
     if not 0.0 <= abs(deg) <= CAMERA_CLIP_DEG:
-        raise ValueError(f"{name} must be within +-{CAMERA_CLIP_DEG} degrees (the world model clips larger "
-                         f"turns per tick), got {deg}")
+        raise ValueError(f"{name} must be within +-{CAMERA_CLIP_DEG} degrees per step, got {deg}")
     return float(deg)
 
 

@@ -6,7 +6,9 @@
     solaris-env play --kind real                       # a local web page: drive Alpha with keyboard and mouse
     solaris-env play --kind dream --agent Bravo --window  # the same in an OpenCV window (needs a display)
 
-Heavy frameworks (jax, torch) are imported only inside the commands, so ``--help`` is instant.
+Heavy frameworks (jax, torch) are imported only inside the commands, so ``--help`` is instant. Errors print one
+line (``--debug`` shows the traceback); ``rollout`` checks ``--out`` / ``--rrd`` before it builds anything; Ctrl-C
+ends ``info`` and ``rollout`` with one line and status 130 and stops ``play`` (status 0).
 """
 
 from __future__ import annotations
@@ -15,6 +17,14 @@ import argparse
 import sys
 import time
 from pathlib import Path
+
+from solaris_env.cli_support import (
+    add_debug_flag,
+    check_output_file,
+    non_negative_int,
+    positive_int,
+    run_command,
+)
 
 # ---------------------------------------------------------------------------------------------
 # Building envs from arguments
@@ -25,14 +35,15 @@ def _add_env_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--kind", choices=("dream", "real"), default="real", help="world model or engine")
     p.add_argument("--checkpoint", type=Path, help="dream: a world-model checkpoint (default: the shipped one)")
     p.add_argument("--preset", choices=("tiny", "test", "solaris"), help="dream: a RANDOM-INIT preset instead")
-    p.add_argument("--players", type=int, default=2, help="number of players")
-    p.add_argument("--resolution", type=int, default=64, help="real: frame size (square)")
+    p.add_argument("--players", type=positive_int, default=2, help="number of players")
+    p.add_argument("--resolution", type=positive_int, default=64, help="real: frame size (square)")
     p.add_argument("--world", choices=("flat", "normal", "mixed"), default=None,
                    help="real: world kind (default: mixed; the minecraft backend has only flat)")
     p.add_argument("--backend", choices=("voxel", "minecraft"), default="voxel",
                    help="real: the voxel engine or real Minecraft in real time (`solaris-engine setup-minecraft`)")
     p.add_argument("--task", default=None, help="task name (solaris_env.tasks.TASKS); default: zero reward")
-    p.add_argument("--seed", type=int, default=0, help="reset seed")
+    p.add_argument("--seed", type=non_negative_int, default=0, help="reset seed")
+    add_debug_flag(p)
 
 
 def _make_env(args, max_steps: int, render_mode: str | None = None):
@@ -97,6 +108,9 @@ def cmd_rollout(args) -> int:
     from solaris_env.env_common import side_by_side
     from solaris_env.wrappers.video import Mp4Writer
 
+    check_output_file(args.out, ".mp4", "--out")  # before the (slow) env: a bad path is a one-line error at once
+    if args.rrd is not None:
+        check_output_file(args.rrd, ".rrd", "--rrd")
     env = _make_env(args, max_steps=args.steps)
     if args.rrd is not None:
         from solaris_env.wrappers.rerun_log import RerunRecorder
@@ -156,11 +170,14 @@ def cmd_play(args) -> int:
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="solaris-env", description=__doc__.split("\n\n")[0].strip("` "),
                                      formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
+    add_debug_flag(parser, top=True)
     sub = parser.add_subparsers(dest="command", required=True)
-    sub.add_parser("info", help="what is installed: envs, models, start scenes, tasks").set_defaults(run=cmd_info)
+    p = sub.add_parser("info", help="what is installed: envs, models, start scenes, tasks")
+    add_debug_flag(p)
+    p.set_defaults(run=cmd_info)
     p = sub.add_parser("rollout", help="run an episode with a scripted/random policy and write an mp4")
     _add_env_args(p)
-    p.add_argument("--steps", type=int, default=100, help="episode length in env steps")
+    p.add_argument("--steps", type=positive_int, default=100, help="episode length in env steps")
     p.add_argument("--policy", choices=("random", "noop", "bot"), default="random",
                    help="what drives every player ('bot': real only)")
     p.add_argument("--out", type=Path, default=Path("rollout.mp4"), help="the mp4 (all players side by side)")
@@ -170,7 +187,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_env_args(p)
     p.add_argument("--agent", default="Alpha", help="the player you drive (Alpha, Bravo, ...)")
     p.add_argument("--policy", choices=("random", "noop", "bot"), default="noop", help="what drives the others")
-    p.add_argument("--max-steps", type=int, default=100_000, help="episode length")
+    p.add_argument("--max-steps", type=positive_int, default=100_000, help="episode length")
     p.add_argument("--fps", type=float, default=None, help="env steps per second (default: real time, the env's "
                    "render_fps: 20 for real, 5 for dream; the env may be slower)")
     p.add_argument("--window", action="store_true", help="an OpenCV window instead of the web page "
@@ -182,10 +199,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Errors print one line (``--debug``: the traceback); Ctrl-C prints one line and exits with status 130
+    (``solaris_env.cli_support``; ``play`` stops on Ctrl-C by design and exits 0)."""
     args = build_parser().parse_args(argv)
-    if getattr(args, "steps", 1) < 1:
-        raise SystemExit("solaris-env: --steps must be >= 1")
-    return args.run(args)
+    return run_command("solaris-env", args.run, args, debug=args.debug)
 
 
 if __name__ == "__main__":

@@ -15,7 +15,6 @@ from typing import Any, ClassVar
 
 import numpy as np
 from gymnasium import spaces as gym_spaces
-from gymnasium.utils import seeding
 from pettingzoo import ParallelEnv
 
 from solaris_env.engine.bots.runner import PLAYER_NAMES
@@ -23,16 +22,23 @@ from solaris_env.env_common import (
     PlayerViewsEnv,
     available_render_modes,
     check_agent_actions,
+    check_int,
     check_options,
     check_render_mode,
+    check_seed,
+    episode_rng,
 )
 from solaris_env.spaces import (
-    KEYBOARD_DIM,
+    CAMERA_KEY,
+    CAMERA_X_INDEX,
+    CAMERA_Y_INDEX,
     MODEL_INDEX,
     ONCE_KEYS,
-    env_action_to_model_vector,
+    _model_vector,
+    camera_linear,
     make_action_space,
     noop,
+    step_ticks,
 )
 from solaris_env.start_scenes import StartFrames
 from solaris_env.tasks import make_task
@@ -40,8 +46,9 @@ from solaris_env.tasks import make_task
 ENGINE_TICKS_PER_SECOND = 20
 DEFAULT_CHECKPOINT = Path(__file__).parent / "assets" / "default"
 
-# ONCE_KEYS (from ``spaces``) act once per key press: in a step of k ticks they are sent on the first tick only.
-_ONCE_INDICES = np.array([MODEL_INDEX[k] for k in ONCE_KEYS])
+# ONCE_KEYS (from ``spaces``, re-exported here) act once per key press: in a step of k ticks they are sent on the
+# first tick only.
+_ONCE_INDICES = np.array([MODEL_INDEX[k] for k in ONCE_KEYS])  # their dims of the model vector
 
 
 # ---------------------------------------------------------------------------------------------
@@ -49,30 +56,40 @@ _ONCE_INDICES = np.array([MODEL_INDEX[k] for k in ONCE_KEYS])
 # ---------------------------------------------------------------------------------------------
 
 
-def expand_action(vec_25: np.ndarray, k: int) -> np.ndarray:
-    """One env step's model vector (25,) -> the k per-tick vectors (k, 25) the model consumes.
+def expand_action(action: Any, k: int, pending_deg: Any = None,
+                  agent: str | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """One env step's action -> the k per-tick model vectors (k, 25) the model consumes, and the camera turn
+    carried to the next step.
 
-    Tick 0 carries the whole action. Ticks 1..k-1 keep the held movement keys but zero the once-keys
-    (``ONCE_KEYS``) and the camera: the camera delta is a per-step turn applied on the first tick, not
-    repeated k times (each tick's turn is clipped to +-20 degrees by ``camera_linear``).
+    The engine's rule (``spaces.step_ticks``, also ``RealParallelEnv(ticks_per_step=k)``): tick 0 carries the
+    whole action; ticks 1..k-1 keep the held movement keys but zero the once-keys (``ONCE_KEYS``); the camera turn
+    (plus ``pending_deg``, what earlier steps left) is spread over the ticks at up to ``CAMERA_TICK_LIMIT_DEG`` =
+    8.59 deg per tick and axis, the range of the model's training data, and what does not fit in k ticks is
+    returned as the new pending turn. So ``camera_linear``'s +-20 deg clip never acts on an env action.
     """
-    ticks_k25 = np.repeat(vec_25[None].astype(np.float32), k, axis=0)
-    ticks_k25[1:, _ONCE_INDICES] = 0.0
-    ticks_k25[1:, KEYBOARD_DIM:] = 0.0  # camera
-    return ticks_k25
+    ticks, pending = step_ticks(action, k, pending_deg, agent)
+    vec_k25 = np.repeat(_model_vector(ticks[0])[None], k, axis=0)  # tick 0's keys (ticks are validated)
+    vec_k25[1:, _ONCE_INDICES] = 0.0
+    turns_k2 = np.stack([tick[CAMERA_KEY] for tick in ticks]).astype(np.float64)  # [dpitch, dyaw] deg, MineRL
+    vec_k25[:, CAMERA_X_INDEX] = 0.0 - turns_k2[:, 1]  # Mineflayer signs, as env_action_to_model_vector
+    vec_k25[:, CAMERA_Y_INDEX] = 0.0 - turns_k2[:, 0]
+    return camera_linear(vec_k25), pending  # the per-tick degrees in model units (never clipped: <= 8.59 deg)
 
 
-def world_actions(actions: Any, agents: list[str], live: list[str], k: int) -> tuple[np.ndarray, list[dict]]:
-    """One world's actions -> (P, k, 25) model ticks and the P env actions, in ``agents`` order.
+def world_actions(actions: Any, agents: list[str], live: list[str], k: int,
+                  pending_P2: np.ndarray | None = None) -> tuple[np.ndarray, list[dict], np.ndarray]:
+    """One world's actions -> (P, k, 25) model ticks, the P env actions and the (P, 2) camera turns carried to the
+    next step, in ``agents`` order (``pending_P2``: the carried turns of the last step; None = none).
 
-    ``actions`` must hold exactly the ``live`` agents; players whose agent has ended get a no-op. Every
-    action is validated first (ValueError naming the agent and the key), so a bad one changes nothing.
+    ``actions`` must hold exactly the ``live`` agents; players whose agent has ended get a no-op (and keep turning
+    what they had pending). Every action is validated first (ValueError naming the agent and the key), so a bad
+    one changes nothing.
     """
     check_agent_actions(actions, live)
     per_player = [actions[a] if a in live else noop() for a in agents]
-    ticks_Pk25 = np.stack([expand_action(env_action_to_model_vector(act, agent=a), k)
-                           for a, act in zip(agents, per_player)])
-    return ticks_Pk25, per_player
+    pending_P2 = np.zeros((len(agents), 2)) if pending_P2 is None else pending_P2
+    expanded = [expand_action(act, k, pending_P2[i], a) for i, (a, act) in enumerate(zip(agents, per_player))]
+    return np.stack([t for t, _ in expanded]), per_player, np.stack([p for _, p in expanded])
 
 
 def build_model(checkpoint=None, preset: str | None = None, num_players: int | None = None, seed_model: int = 0):
@@ -143,6 +160,22 @@ class DreamParallelEnv(PlayerViewsEnv, ParallelEnv):
 
     Rendering: ``render()`` returns one sheet per env step, i.e. k engine ticks, so
     ``metadata["render_fps"]`` = 20 / k plays it in real time (``infos[agent]["frames"]`` run at 20 fps).
+
+    Camera: a step's turn is spread over its k ticks at up to ``spaces.CAMERA_TICK_LIMIT_DEG`` = 8.59 deg per tick
+    and axis (the per-tick range of the model's training data), so one step turns up to k * 8.59 deg (34.4 at
+    k = 4) per axis; the rest of a larger turn (a yaw of 90 deg: 34.4 + 34.4 + 21.2) is carried over and turned in
+    the next steps, before their own turns, as ``RealParallelEnv(ticks_per_step=k)`` does
+    (``spaces.step_ticks``). Nothing is clipped. What is still to turn is part of the env's state:
+    ``infos[agent]["camera_pending"]`` ([dpitch, dyaw] degrees), kept while the agent has ended (its player
+    is sent no-ops), cleared by ``reset``.
+
+    Determinism: the same seed and actions give identical frames (bit-exact) in one process and across processes on
+    one machine and JAX build (measured: the test preset and the shipped model, a fresh compile or the persistent
+    compilation cache, 1 or 2 cores, Eigen multi-threading on or off: 0 differing pixels;
+    ``tests/env/test_dream_parallel.py``). Another CPU or XLA build may round differently.
+
+    Observations, ``infos[agent]["frames"]`` and ``render()`` are arrays the caller owns (copies: ~10 us a step
+    at 64x64); ``step_frames()`` is a read-only view of the env's buffer.
     """
 
     metadata: ClassVar[dict] = {"name": "solaris_dream_v0", "render_modes": ["rgb_array", "human"],
@@ -151,10 +184,9 @@ class DreamParallelEnv(PlayerViewsEnv, ParallelEnv):
     def __init__(self, checkpoint=None, preset: str | None = None, num_players: int | None = None,
                  max_steps: int = 200, task=None, render_mode: str | None = None, start_states: Any = "bundled",
                  seed_model: int = 0, model=None):
-        if max_steps < 1:
-            raise ValueError(f"max_steps must be >= 1, got {max_steps}")
+        max_steps = check_int(max_steps, "max_steps")
         check_render_mode(render_mode)
-        if num_players is not None and not 1 <= num_players <= len(PLAYER_NAMES):
+        if num_players is not None and not 1 <= check_int(num_players, "num_players") <= len(PLAYER_NAMES):
             raise ValueError(f"num_players must be in [1, {len(PLAYER_NAMES)}], got {num_players}")
         self.task = make_task(task)
         if self.task.requires_truth:
@@ -163,10 +195,10 @@ class DreamParallelEnv(PlayerViewsEnv, ParallelEnv):
         self.model = model if model is not None else build_model(checkpoint, preset, num_players, seed_model)
         self.num_players = check_model_players(self.model, num_players)
         self.max_steps, self.render_mode = max_steps, render_mode
-        self.metadata = {**type(self).metadata, "render_modes": available_render_modes()}
         self.height, self.width, _ = self.model.frame_shape
         self.frames_per_step = self.model.frames_per_step
-        self.metadata = {**type(self).metadata, "render_fps": ENGINE_TICKS_PER_SECOND / self.frames_per_step}
+        self.metadata = {**type(self).metadata, "render_modes": available_render_modes(),
+                         "render_fps": ENGINE_TICKS_PER_SECOND / self.frames_per_step}
         self.possible_agents = list(PLAYER_NAMES[: self.num_players])
         self.agents: list[str] = []
         self._observation_spaces = {a: gym_spaces.Box(0, 255, (self.height, self.width, 3), np.uint8)
@@ -177,44 +209,61 @@ class DreamParallelEnv(PlayerViewsEnv, ParallelEnv):
         self._frames: np.ndarray | None = None  # (P, H, W, 3): the last frame of each player
         self._step_frames: np.ndarray | None = None  # (P, k, H, W, 3): all frames of the last step
         self._steps = 0
+        self._camera_pending_P2 = np.zeros((self.num_players, 2))  # [dpitch, dyaw] deg still to turn (step_ticks)
         self.np_random: np.random.Generator | None = None  # seeded by reset(seed)
 
     # -- reset / step -----------------------------------------------------------------------------
+    RESET_OPTIONS = ("frames", "engine_state")
+
     def reset(self, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
         """Start the model from one frame per player; the observation is the model's frame 0.
 
         Start frames, by priority: ``options={"frames": {agent: (H, W, 3) uint8}}`` (every agent),
         ``options={"engine_state": EngineState}`` (rendered with the engine), else ``start_states`` sampled
         with ``seed``. Frame 0 is generated by the model conditioned on the start frame (not copied), so it
-        equals the start frame only for a trained model. Other ``options`` keys are ignored.
-        ``infos[agent]["start"]`` says which start was used.
+        equals the start frame only for a trained model. Any other ``options`` key raises ValueError (except
+        ``"options"``, PettingZoo's API-test probe, which is ignored). ``seed``: None or an int >= 0 (numpy
+        integers too; not a bool). ``infos[agent]["start"]`` says which start was used. Everything is checked
+        before anything is drawn: a reset that raises changes nothing (not the seed stream, not the episode).
         """
-        if seed is not None or self.np_random is None:  # no seed: continue the episode stream (Gymnasium rule)
-            self.np_random, _ = seeding.np_random(seed)
-        options = check_options(options)
+        seed = check_seed(seed)
+        options = check_options(options, self.RESET_OPTIONS)
         given = self.start_frames.from_options(options)
-        first_PHW3, start = given if given is not None else self.start_frames.sample(self.np_random)
-        model_seed = int(self.np_random.integers(2**31 - 1))
+        rng = episode_rng(self.np_random, seed)  # no seed: continue the episode stream (Gymnasium rule)
+        first_PHW3, start = given if given is not None else self.start_frames.sample(rng)
+        model_seed = int(rng.integers(2**31 - 1))
         self._state = self.model.init(first_PHW3[None], model_seed)
-        self._frames = np.array(self._state.frame0_BPHW3)[0]  # a copy: the state is donated later
+        self.np_random = rng
+        self._frames = _read_only(np.array(self._state.frame0_BPHW3)[0])  # a copy: the state is donated later
         self._step_frames = self._frames[:, None]
+        self._camera_pending_P2 = np.zeros((self.num_players, 2))
         self.agents = list(self.possible_agents)
         self._steps = 0
         self.task.reset(self._frames)
-        return self._observations(), {a: {"step": 0, **start} for a in self.agents}
+        return self._observations(), {a: {"step": 0, **start, "camera_pending": np.zeros(2, np.float32)}
+                                      for a in self.agents}
 
     def step(self, actions: dict[str, Any]) -> tuple[dict, dict, dict, dict, dict]:
         if self._state is None or not self.agents:
             raise RuntimeError("step() called before reset() or after the episode ended; call reset()")
         # validate every action before the (donating) model call, so a bad action leaves the env intact
-        ticks_Pk25, per_player = world_actions(actions, self.possible_agents, self.agents, self.frames_per_step)
+        ticks_Pk25, per_player, pending_P2 = world_actions(actions, self.possible_agents, self.agents,
+                                                           self.frames_per_step, self._camera_pending_P2)
         frames_BPkHW3, self._state = self.model.step(self._state, ticks_Pk25[None])
-        frames_PkHW3 = np.array(frames_BPkHW3)[0]
+        frames_PkHW3 = _read_only(np.array(frames_BPkHW3)[0])
         self._frames, self._step_frames = frames_PkHW3[:, -1], frames_PkHW3
+        self._camera_pending_P2 = pending_P2
         self._steps += 1
         outcome = self.task.step(frames_PkHW3, per_player)
-        infos = [{"step": self._steps, "frames": frames_PkHW3[i]} for i in range(self.num_players)]
+        infos = [{"step": self._steps, "frames": frames_PkHW3[i].copy(),
+                  "camera_pending": pending_P2[i].astype(np.float32)} for i in range(self.num_players)]
         return self._step_outputs(outcome.rewards_P, outcome.terminations_P, self._steps >= self.max_steps, infos)
+
+
+def _read_only(array: np.ndarray) -> np.ndarray:
+    """``array`` marked read-only (the env's frame buffers: callers get copies or read-only views)."""
+    array.setflags(write=False)
+    return array
 
 
 def parallel_env(kind: str = "dream", **kwargs) -> ParallelEnv:

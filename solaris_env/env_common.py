@@ -3,6 +3,7 @@ the key, the per-agent step outputs (tasks, terminations, truncation) and all pl
 
 from __future__ import annotations
 
+import copy
 import os
 from collections.abc import Mapping, Sequence
 from typing import Any
@@ -48,13 +49,56 @@ def human_display_problem() -> str | None:
     return None
 
 
-def check_options(options: Any) -> Mapping:
-    """``reset``'s options: None or a dict (unknown keys are ignored: PettingZoo's API test passes some)."""
+# ``reset`` option keys that are accepted and ignored: PettingZoo's ``parallel_api_test`` (and ``api_test``) call
+# ``reset(seed=0, options={"options": 1})`` to check that reset takes the argument; its seed test passes none.
+IGNORED_OPTION_KEYS = ("options",)
+
+
+def check_options(options: Any, allowed: Sequence[str] = (), ignored: Sequence[str] = IGNORED_OPTION_KEYS) -> Mapping:
+    """``reset``'s options: None or a dict whose keys are in ``allowed`` (used) or ``ignored`` (PettingZoo's API
+    test probe, ``IGNORED_OPTION_KEYS``). Any other key raises ValueError naming it and the keys this env takes, so
+    a typo (``"frame"`` for ``"frames"``) does not silently start the default scene."""
     if options is None:
         return {}
     if not isinstance(options, Mapping):
         raise TypeError(f"options must be a dict or None, got {type(options).__name__}")
-    return options
+    unknown = [k for k in options if k not in allowed and k not in ignored]
+    if unknown:
+        raise ValueError(f"options: unknown key {unknown[0]!r}; this env's reset takes {list(allowed)} "
+                         f"(and ignores {list(ignored)}, PettingZoo's API-test probe)")
+    return {k: v for k, v in options.items() if k in allowed}
+
+
+def check_seed(seed: Any) -> int | None:
+    """``reset``'s seed: None or an int >= 0 (Python or numpy integer) -> None or a Python int. Bools and other
+    types (float, str, ...) raise ValueError naming ``seed``."""
+    if seed is None:
+        return None
+    if isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)):
+        raise ValueError(f"seed must be None or an int >= 0 (a Python or numpy integer, not a bool), "
+                         f"got {type(seed).__name__} {seed!r}")
+    if seed < 0:
+        raise ValueError(f"seed must be None or an int >= 0, got {seed!r}")
+    return int(seed)
+
+
+def check_int(value: Any, name: str, minimum: int = 1) -> int:
+    """``value`` as a Python int >= ``minimum`` (numpy integers are fine); bools, floats (2.5, nan), strings and
+    None raise ValueError naming ``name``."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value < minimum:
+        raise ValueError(f"{name} must be an int >= {minimum}, got {type(value).__name__} {value!r}")
+    return int(value)
+
+
+def episode_rng(current: np.random.Generator | None, seed: int | None) -> np.random.Generator:
+    """The generator a ``reset`` draws from: a fresh one for ``seed`` (or when there is none yet), else a COPY of
+    ``current`` (Gymnasium's rule: an unseeded reset continues the stream). The env assigns it only once the reset
+    has succeeded, so a failed reset leaves the stream where it was."""
+    if seed is not None or current is None:
+        from gymnasium.utils import seeding
+
+        return seeding.np_random(seed)[0]
+    return copy.deepcopy(current)
 
 
 def check_agent_actions(actions: Any, agents: Sequence[str]) -> None:
@@ -146,14 +190,18 @@ class PlayerViewsEnv:
 
     def step_frames(self) -> np.ndarray:
         """uint8 (P, k, H, W, 3): every player's frames of the last step (k = 1 after reset; all players,
-        including those whose agent has ended). Recorders use it."""
+        including those whose agent has ended), a read-only view of the env's buffer (copy it to change it).
+        Recorders use it."""
         if self._step_frames is None:
             raise RuntimeError("step_frames() called before reset(); call reset() first")
-        return self._step_frames
+        view = self._step_frames.view()
+        view.setflags(write=False)
+        return view
 
     # -- per-agent outputs ------------------------------------------------------------------------
     def _observations(self) -> dict[str, np.ndarray]:
-        return {a: self._frames[self.possible_agents.index(a)] for a in self.agents}
+        """Each live agent's frame, a copy the caller owns (writing into it changes nothing in the env)."""
+        return {a: self._frames[self.possible_agents.index(a)].copy() for a in self.agents}
 
     def _step_outputs(self, rewards_P: np.ndarray, terminations_P: np.ndarray, truncated: bool,
                       infos_P: list[dict]) -> tuple[dict, dict, dict, dict, dict]:

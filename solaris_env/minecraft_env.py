@@ -13,7 +13,6 @@ import math
 from typing import Any, ClassVar
 
 import numpy as np
-from gymnasium.utils import seeding
 
 from solaris_env.engine.blocks import BY_NAME
 from solaris_env.engine.minecraft.collect import frames_from_rgba, render_size
@@ -25,9 +24,9 @@ from solaris_env.engine.minecraft.records import (
     action_record,
     project_box,
 )
-from solaris_env.env_common import check_agent_actions, check_options
+from solaris_env.env_common import check_options, check_seed, episode_rng
 from solaris_env.real_env import RealParallelEnv
-from solaris_env.spaces import minerl_camera_to_mineflayer, noop, tick_actions, validate_action
+from solaris_env.spaces import minerl_camera_to_mineflayer
 
 FOV_DEG = 70.0
 DISPLAY_ASPECT = 16 / 9
@@ -179,14 +178,14 @@ class MinecraftParallelEnv(RealParallelEnv):
     # -- reset / step -----------------------------------------------------------------------------
     def reset(self, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
         """(Re)spawn the players (see the class docstring); starts the game on the first call."""
-        if seed is not None or self.np_random is None:
-            self.np_random, _ = seeding.np_random(seed)
-        options = check_options(options)
+        seed = check_seed(seed)
+        options = check_options(options, ("world", "engine_state"))
         if "engine_state" in options:
             raise NotImplementedError("reset(options={'engine_state': ...}) is not available on the minecraft "
                                       "backend: a real server's state cannot be restored; use backend='voxel'")
         if options.get("world", "flat") != "flat":
             raise ValueError(f"options['world']: the minecraft backend has only 'flat', got {options['world']!r}")
+        self.np_random = episode_rng(self.np_random, seed)
         if self.bridge is None:
             from solaris_env.engine.minecraft.bridge import MinecraftBridge
 
@@ -198,6 +197,7 @@ class MinecraftParallelEnv(RealParallelEnv):
                                     else float(self.np_random.uniform(0, 2 * math.pi)), "pitch": 0.0}
                                    for k, (x, z) in enumerate(spots)])
         self.agents = list(self.possible_agents)
+        self._camera_pending_P2 = np.zeros((self.num_players, 2))
         self._steps = 0
         self._frames = self._resample(reply.rgba_PTHW4)[:, -1]
         self._step_frames = self._frames[:, None]
@@ -209,10 +209,7 @@ class MinecraftParallelEnv(RealParallelEnv):
     def step(self, actions: dict[str, Any]) -> tuple[dict, dict, dict, dict, dict]:
         if self.bridge is None or self._poses is None or not self.agents:
             raise RuntimeError("step() called before reset() or after the episode ended; call reset()")
-        check_agent_actions(actions, self.agents)
-        per_player = [validate_action(actions[a], agent=a) if a in self.agents else noop()
-                      for a in self.possible_agents]
-        ticks_P = [tick_actions(act, self.ticks_per_step) for act in per_player]  # P lists of k tick actions
+        per_player, ticks_P = self._tick_actions(actions)  # P env actions, P lists of k ticks (carried camera turns)
         from solaris_env.engine.minecraft.bridge import tick_message
 
         reply = self.bridge.step([[tick_message(ticks[t], minerl_camera_to_mineflayer(ticks[t]["camera"]))
@@ -255,7 +252,7 @@ class MinecraftParallelEnv(RealParallelEnv):
         info = {"pos": np.array([pose["x"], pose["y"], pose["z"]]), "yaw": float(pose["yaw"]) % (2 * math.pi),
                 "pitch": float(pose["pitch"]), "step": self._steps,
                 "sees": {name: s["pixels"] > 0 for name, s in screen.items()}, "screen": screen,
-                "truth_source": TRUTH_SOURCE}
+                "truth_source": TRUTH_SOURCE, "camera_pending": self._camera_pending_P2[i].astype(np.float32)}
         if header is not None:
             info["action_record"] = self._action_record(pose, last_action)
             info["placed"] = [block_event(c) for pose in self._step_poses[i] for c in pose["placed"]]

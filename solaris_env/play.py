@@ -21,9 +21,11 @@ WebSocket protocol. One connection drives at a time; a newer one (a reloaded pag
 Camera units. The env camera is [dpitch, dyaw] in degrees per step, +pitch looks down, +yaw turns right
 (``spaces.make_action_space``). Mouse pixels become degrees at ``DEG_PER_PIXEL`` = 0.15 deg/px
 (``spaces.VPT_CAMERA_DEG_PER_PIXEL``, the mouse sensitivity of the VPT recordings), so a sweep turns as far as it
-did for the people in the training data. One step turns at most ``MAX_TURN_DEG`` = 20 deg per axis
-(``spaces.CAMERA_CLIP_DEG``: the world model's ``camera_linear`` clips larger per-step turns). Nothing is
-clipped: movement beyond that is carried over and turned in the next steps (the status shows what is pending).
+did for the people in the training data. One step turns at most what the env turns in one step,
+``PlaySession.max_turn_deg`` = k x ``spaces.CAMERA_TICK_LIMIT_DEG`` (8.59 deg per engine tick, the training data's
+look speed; k = the env's ticks per step: 8.59 deg in the real env at 20 steps/s, 34.4 in the dream at 5 steps/s,
+172 deg/s in both; ``PlayControls`` alone defaults to ``MAX_TURN_DEG`` = 20). Nothing is clipped: movement beyond
+that is carried over and turned in the next steps (the status shows what is pending).
 """
 
 from __future__ import annotations
@@ -39,10 +41,17 @@ from typing import Any
 
 import numpy as np
 
-from solaris_env.spaces import BINARY_KEYS, CAMERA_CLIP_DEG, CAMERA_KEY, VPT_CAMERA_DEG_PER_PIXEL, noop
+from solaris_env.spaces import (
+    BINARY_KEYS,
+    CAMERA_CLIP_DEG,
+    CAMERA_KEY,
+    CAMERA_TICK_LIMIT_DEG,
+    VPT_CAMERA_DEG_PER_PIXEL,
+    noop,
+)
 
 DEG_PER_PIXEL = VPT_CAMERA_DEG_PER_PIXEL  # 360 / 2400 = 0.15 deg per pixel of mouse movement
-MAX_TURN_DEG = CAMERA_CLIP_DEG  # per step and axis; the rest waits for the next steps
+MAX_TURN_DEG = CAMERA_CLIP_DEG  # PlayControls' default per step and axis; the rest waits for the next steps
 LOOK_DEG_PER_STEP = 5.0  # what a held arrow key turns per step
 # look key -> its unit turn [dpitch, dyaw] (MineRL signs: +down, +right)
 LOOK_KEYS = {"lookUp": (-1.0, 0.0), "lookDown": (1.0, 0.0), "turnLeft": (0.0, -1.0), "turnRight": (0.0, 1.0)}
@@ -151,6 +160,9 @@ class PlaySession:
             raise ValueError(f"--agent must be one of {env.possible_agents}, got {agent!r}")
         self.env, self.agent, self.policy, self.seed = env, agent, policy, seed
         self.index = env.possible_agents.index(agent)
+        base = env.unwrapped
+        ticks = getattr(base, "ticks_per_step", None) or getattr(base, "frames_per_step", None) or 1
+        self.max_turn_deg = CAMERA_TICK_LIMIT_DEG * ticks  # what one env step turns; more waits in PlayControls
         self.lock = threading.RLock()
         self.driver = 0
         self.episode = -1
@@ -300,7 +312,7 @@ def _drive(session: PlaySession, fps: float, ws) -> None:
     """One WebSocket connection: read input, step, send the frame and the status, ``fps`` times a second."""
     from websockets.exceptions import ConnectionClosed
 
-    token, controls = session.claim(), PlayControls()
+    token, controls = session.claim(), PlayControls(max_turn_deg=session.max_turn_deg)
     try:
         for _ in _paced(fps):
             if session.driver != token:  # a newer page took over
@@ -411,7 +423,7 @@ def run_window(session: PlaySession, fps: float, scale: int = 8) -> None:
     import cv2
 
     name = f"solaris-env play: {session.agent}"
-    controls, keys, drag = PlayControls(), HeldKeys(), {"at": None}
+    controls, keys, drag = PlayControls(max_turn_deg=session.max_turn_deg), HeldKeys(), {"at": None}
 
     def on_mouse(event, x, y, flags, _):
         if event == cv2.EVENT_LBUTTONDOWN:

@@ -19,7 +19,6 @@ from typing import Any, ClassVar
 
 import numpy as np
 from gymnasium import spaces as gym_spaces
-from gymnasium.utils import seeding
 from pettingzoo import ParallelEnv
 
 from solaris_env.engine.bots.runner import PLAYER_NAMES, make_players, spawn_positions
@@ -30,10 +29,13 @@ from solaris_env.env_common import (
     PlayerViewsEnv,
     available_render_modes,
     check_agent_actions,
+    check_int,
     check_options,
     check_render_mode,
+    check_seed,
+    episode_rng,
 )
-from solaris_env.spaces import make_action_space, noop, tick_actions, validate_action
+from solaris_env.spaces import make_action_space, noop, step_ticks, validate_action
 from solaris_env.tasks import make_task
 
 WORLD_CHOICES = ("flat", "normal", "mixed")
@@ -157,7 +159,7 @@ class RealParallelEnv(PlayerViewsEnv, ParallelEnv):
             lists what differs). Other values raise ValueError.
         ticks_per_step: engine ticks per env step (k). With k > 1 a step plays like a dream env step of k
             frames: the first tick gets the whole action, ticks 2..k keep the movement keys held but release
-            the once-keys and the camera (``spaces.tick_actions``); every tick is rendered
+            the once-keys, and the camera turn is spread over the ticks (below; ``spaces.step_ticks``); every tick is rendered
             (``step_frames()`` is (P, k, H, W, 3)), the task scores the step once with all k frames, and the
             infos are the last tick's, with ``placed``/``mined`` gathered over the k ticks. Use the world
             model's ``frames_per_step`` to compare a policy in both envs.
@@ -167,10 +169,20 @@ class RealParallelEnv(PlayerViewsEnv, ParallelEnv):
     their centroid's horizontal position in [0, 1], None when no pixel shows}``, from the renderer's
     per-pixel player ids), and after a step ``action_record``, ``placed``, ``mined``.
 
+    Camera: a player turns at most ``spaces.CAMERA_TICK_LIMIT_DEG`` = 8.59 deg per tick and axis (the look speed
+    of the recorded data and the world model's per-tick range), so one step turns up to k * 8.59 deg per axis
+    from its first tick on; the rest of a larger turn (a yaw of 90 deg at k = 4: 34.4 + 34.4 + 21.2) is carried
+    over and turned in the next steps, before their own turns -- the dream env's rule, so an action means the
+    same in both envs. Nothing is clipped. What is still to turn is part of the env's state
+    (``infos[agent]["camera_pending"]``, [dpitch, dyaw] degrees; kept while the agent has ended, cleared by
+    ``reset``). Pitch stops at +-90 deg as in the game (what is pending beyond it is still turned against it).
+
     ``reset(seed, options)`` options: ``{"world": "flat" | "normal"}`` overrides the world kind for the
-    episode; ``{"engine_state": EngineState}`` starts from a snapshot instead of a fresh world. Other keys
-    are ignored. ``reset()`` without a seed continues the generator of the last seeded reset (Gymnasium's
-    rule), so a seeded run of episodes is reproducible.
+    episode; ``{"engine_state": EngineState}`` starts from a snapshot instead of a fresh world. Any other key
+    raises ValueError (except ``"options"``, PettingZoo's API-test probe, ignored). ``seed``: None or an int
+    >= 0 (numpy integers too; not a bool). ``reset()`` without a seed continues the generator of the last
+    seeded reset (Gymnasium's rule), so a seeded run of episodes is reproducible. A reset that raises changes
+    nothing (everything is checked before anything is drawn). Observations are copies the caller owns.
     """
 
     metadata: ClassVar[dict] = {"name": "solaris_real_v0", "render_modes": ["rgb_array", "human"], "render_fps": 20,
@@ -198,18 +210,16 @@ class RealParallelEnv(PlayerViewsEnv, ParallelEnv):
         h, w = (resolution, resolution) if isinstance(resolution, int) else tuple(resolution)
         if h < 8 or w < 8:
             raise ValueError(f"resolution must be at least 8x8, got {(h, w)}")
-        if max_steps < 1:
-            raise ValueError(f"max_steps must be >= 1, got {max_steps}")
-        if not isinstance(ticks_per_step, (int, np.integer)) or ticks_per_step < 1:
-            raise ValueError(f"ticks_per_step must be an int >= 1, got {ticks_per_step!r}")
+        max_steps = check_int(max_steps, "max_steps")
+        ticks_per_step = check_int(ticks_per_step, "ticks_per_step")
         check_render_mode(render_mode)
         if not 0 < spawn_distance[0] <= spawn_distance[1]:
             raise ValueError(f"spawn_distance must be (min, max) with 0 < min <= max, got {spawn_distance}")
         self.num_players, self.world_kind, self.max_steps = num_players, world, max_steps
         self.ticks_per_step = int(ticks_per_step)
-        self.metadata = {**type(self).metadata, "render_fps": 20 / self.ticks_per_step}
         self.render_mode = render_mode
-        self.metadata = {**type(self).metadata, "render_modes": available_render_modes()}
+        self.metadata = {**type(self).metadata, "render_fps": 20 / self.ticks_per_step,
+                         "render_modes": available_render_modes()}
         self.height, self.width = h, w
         self.spawn_distance, self.view_distance, self.hud = spawn_distance, view_distance, hud
         self.task = make_task(task)
@@ -222,20 +232,25 @@ class RealParallelEnv(PlayerViewsEnv, ParallelEnv):
         self._frames: np.ndarray | None = None  # (P, H, W, 3) of the current state
         self._step_frames: np.ndarray | None = None  # (P, k, H, W, 3): every tick of the last step
         self._steps = 0
+        self._camera_pending_P2 = np.zeros((num_players, 2))  # [dpitch, dyaw] deg still to turn (step_ticks)
         self.np_random: np.random.Generator | None = None  # seeded by reset(seed)
 
     # -- reset / step -----------------------------------------------------------------------------
     def reset(self, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
         """Build a fresh seeded world and spawn the players facing each other, or start from
         ``options["engine_state"]``."""
-        if seed is not None or self.np_random is None:  # no seed: continue the episode stream (Gymnasium rule)
-            self.np_random, _ = seeding.np_random(seed)
-        options = check_options(options)
-        if "engine_state" in options:
-            self.game = check_engine_state(options["engine_state"], self.possible_agents).game()
-        else:
-            self.game = self._new_game(options.get("world", self.world_kind))
+        seed = check_seed(seed)
+        options = check_options(options, self.RESET_OPTIONS)
+        state = check_engine_state(options["engine_state"], self.possible_agents) if "engine_state" in options \
+            else None
+        kind = options.get("world", self.world_kind)
+        if kind not in WORLD_CHOICES:
+            raise ValueError(f"options['world'] must be 'flat' or 'normal' (or 'mixed'), got {kind!r}")
+        rng = episode_rng(self.np_random, seed)  # no seed: continue the episode stream (Gymnasium rule)
+        self.game = state.game() if state is not None else self._new_game(kind, rng)
+        self.np_random = rng
         self.agents = list(self.possible_agents)
+        self._camera_pending_P2 = np.zeros((self.num_players, 2))
         self._steps = 0
         self._frames = self._render_views()
         self._step_frames = self._frames[:, None]
@@ -246,11 +261,7 @@ class RealParallelEnv(PlayerViewsEnv, ParallelEnv):
     def step(self, actions: dict[str, Any]) -> tuple[dict, dict, dict, dict, dict]:
         if self.game is None or not self.agents:
             raise RuntimeError("step() called before reset() or after the episode ended; call reset()")
-        check_agent_actions(actions, self.agents)
-        # players whose agent already terminated stand still
-        per_player = [validate_action(actions[a], agent=a) if a in self.agents else noop()
-                      for a in self.possible_agents]
-        ticks_P = [tick_actions(act, self.ticks_per_step) for act in per_player]  # P lists of k tick actions
+        per_player, ticks_P = self._tick_actions(actions)  # P env actions, P lists of k tick actions
         frames, events = [], []
         for t in range(self.ticks_per_step):
             events.append(self.game.step([ticks[t] for ticks in ticks_P]))
@@ -269,16 +280,28 @@ class RealParallelEnv(PlayerViewsEnv, ParallelEnv):
         return EngineState.of(self.game)
 
     # -- internals --------------------------------------------------------------------------------
-    def _new_game(self, kind: str) -> Game:
+    RESET_OPTIONS = ("world", "engine_state")
+
+    def _tick_actions(self, actions: Any) -> tuple[list[dict], list[list[dict]]]:
+        """Check every action (ValueError naming the agent and key) and split each into its k ticks with the
+        carried camera turn (``spaces.step_ticks``); the new pending turns are kept only when all are valid.
+        Players whose agent has ended get a no-op (and keep turning what they had pending)."""
+        check_agent_actions(actions, self.agents)
+        per_player = [validate_action(actions[a], agent=a) if a in self.agents else noop()
+                      for a in self.possible_agents]
+        split = [step_ticks(act, self.ticks_per_step, self._camera_pending_P2[i], agent=a)
+                 for i, (a, act) in enumerate(zip(self.possible_agents, per_player))]
+        self._camera_pending_P2 = np.stack([pending for _, pending in split])
+        return per_player, [ticks for ticks, _ in split]
+
+    def _new_game(self, kind: str, rng: np.random.Generator) -> Game:
         if kind == "mixed":
-            kind = ("flat", "normal")[int(self.np_random.integers(2))]
-        if kind not in ("flat", "normal"):
-            raise ValueError(f"options['world'] must be 'flat' or 'normal', got {kind!r}")
-        world_seed = int(self.np_random.integers(2**31 - 1))
-        world = generate(kind, world_seed, variant=int(self.np_random.integers(len(FLAT_VARIANTS))),
+            kind = ("flat", "normal")[int(rng.integers(2))]
+        world_seed = int(rng.integers(2**31 - 1))
+        world = generate(kind, world_seed, variant=int(rng.integers(len(FLAT_VARIANTS))),
                          cfg=self.world_config)
         n = max(2, self.num_players)
-        feet = spawn_positions(world, self.np_random, n, *self.spawn_distance, self.world_config)[: self.num_players]
+        feet = spawn_positions(world, rng, n, *self.spawn_distance, self.world_config)[: self.num_players]
         return Game(world, make_players(feet), world_age=6000)
 
     def _render_views(self) -> np.ndarray:
@@ -290,7 +313,8 @@ class RealParallelEnv(PlayerViewsEnv, ParallelEnv):
         p = self.game.players[i]
         screen = {q.name: screen_position(self._avatar_id[i], j) for j, q in enumerate(self.game.players) if j != i}
         info = {"pos": p.pos.copy(), "yaw": p.yaw, "pitch": p.pitch, "step": self._steps,
-                "sees": {name: s["pixels"] > 0 for name, s in screen.items()}, "screen": screen}
+                "sees": {name: s["pixels"] > 0 for name, s in screen.items()}, "screen": screen,
+                "camera_pending": self._camera_pending_P2[i].astype(np.float32)}
         if events is not None:
             info["action_record"] = events[-1].record
             info["placed"] = [cell for e in events for cell in e.placed]

@@ -41,6 +41,12 @@ CAMERA_KEY = "camera"
 CAMERA_AXES = ("pitch", "yaw")  # the camera action is [dpitch, dyaw] degrees (MineRL)
 ACTION_KEYS = BINARY_KEYS + (CAMERA_KEY,)
 CAMERA_LIMIT_DEG = 180.0  # env camera bound per step, both axes, inclusive
+# The largest camera turn per 20 Hz engine tick and axis, degrees: the per-tick range of the Duet training data
+# (Mineflayer's look speed, 3 rad/s = 0.15 rad = 8.594 deg per tick; ``engine.bots.controller.MAX_TURN_RAD``; every
+# recorded tick lies within it). An env step of k ticks turns at most k times this per axis; the rest of a larger
+# turn is carried over to the next steps (``step_ticks``), in the engine and in the dream alike.
+CAMERA_TICK_LIMIT_DEG = math.degrees(3.0 / 20)
+_TICK_LIMIT_F32 = float(np.float32(CAMERA_TICK_LIMIT_DEG))  # a full tick's turn as the float32 a tick action holds
 
 # ---------------------------------------------------------------------------------------------
 # Model action vector (docs/actions.md §4)
@@ -128,19 +134,53 @@ def noop() -> dict[str, Any]:
 ONCE_KEYS = ("attack", "use", "drop", "inventory", "ESC", "swapHands", "pickItem") + HOTBAR_KEYS
 
 
-def tick_actions(action: Mapping[str, Any], k: int) -> list[dict[str, Any]]:
-    """One env step's action -> the k per-tick env actions of the step.
+def step_ticks(action: Mapping[str, Any], k: int, pending_deg: Any = None,
+               agent: str | None = None) -> tuple[list[dict[str, Any]], np.ndarray]:
+    """One env step's action -> the k per-tick env actions of the step, and the camera turn left for later steps.
 
-    Tick 0 carries the whole action; ticks 1..k-1 keep the held movement keys but release the ``ONCE_KEYS``
-    and the camera (the camera delta is a per-step turn, not repeated k times). The dream env applies the
-    same rule to the model's action vectors (``dream_env.expand_action``).
+    Keys: tick 0 carries the whole action; ticks 1..k-1 keep the held movement keys but release the ``ONCE_KEYS``.
+    Camera: the step's turn [dpitch, dyaw] plus ``pending_deg`` (what earlier steps left over) is turned at up to
+    ``CAMERA_TICK_LIMIT_DEG`` per tick and axis, from tick 0 on (a 20 deg yaw at k = 4: 8.59, 8.59, 2.81, 0), so
+    a step turns up to k * 8.59 deg per axis; the rest is returned, to be passed as ``pending_deg`` with the next
+    step's action (nothing is clipped or dropped). The real env (``ticks_per_step`` = k) and the dream env (k =
+    the model's ``frames_per_step``; ``dream_env.expand_action``) both use this rule, so an action means the same
+    turn in both.
+
+    Returns:
+        ticks: k validated env actions (camera float32 degrees per tick).
+        pending: float64 (2,) [dpitch, dyaw] degrees still to turn (exact zeros once the turn is done).
+    Raises ValueError (naming ``agent`` and the key) on a bad action, a bad ``k`` or a bad ``pending_deg``.
     """
-    if not isinstance(k, (int, np.integer)) or k < 1:
+    if isinstance(k, (bool, np.bool_)) or not isinstance(k, (int, np.integer)) or k < 1:
         raise ValueError(f"k (ticks per step) must be an int >= 1, got {k!r}")
-    first = validate_action(action)
+    first = validate_action(action, agent)
+    pending = first[CAMERA_KEY].astype(np.float64)
+    if pending_deg is not None:
+        pending = pending + _as_finite_pair(pending_deg, "pending_deg", _where(agent))
+    rest = [float(pending[0]), float(pending[1])]
+    turns = np.zeros((int(k), 2), np.float32)
+    for t in range(int(k)):
+        for axis in (0, 1):
+            if abs(rest[axis]) <= CAMERA_TICK_LIMIT_DEG:  # what is left fits in this tick: done
+                turns[t, axis], rest[axis] = rest[axis], 0.0
+            else:
+                turns[t, axis] = math.copysign(_TICK_LIMIT_F32, rest[axis])
+                rest[axis] -= float(turns[t, axis])
     held = dict(first, **{key: 0 for key in ONCE_KEYS})
-    held[CAMERA_KEY] = np.zeros(2, dtype=np.float32)
-    return [first] + [dict(held) for _ in range(int(k) - 1)]
+    ticks = [dict(first if t == 0 else held) for t in range(int(k))]
+    for t, tick in enumerate(ticks):
+        tick[CAMERA_KEY] = turns[t]
+    return ticks, np.array(rest)
+
+
+def tick_actions(action: Mapping[str, Any], k: int) -> list[dict[str, Any]]:
+    """``step_ticks`` with nothing pending, for a turn that fits in k ticks (at most k * ``CAMERA_TICK_LIMIT_DEG``
+    per axis); a larger one raises ValueError (use ``step_ticks`` and carry its remainder: nothing is dropped)."""
+    ticks, pending = step_ticks(action, k)
+    if np.any(pending != 0.0):
+        raise ValueError(f"action key {CAMERA_KEY!r}: {np.asarray(action[CAMERA_KEY]).tolist()} deg does not fit in "
+                         f"{k} ticks of at most {CAMERA_TICK_LIMIT_DEG:.3f} deg; use step_ticks, which carries the rest")
+    return ticks
 
 
 def _where(agent: str | None) -> str:
@@ -271,7 +311,11 @@ def env_action_to_model_vector(action: Mapping[str, Any], agent: str | None = No
     cameraX = -camera[1] (dyaw, + = left) and cameraY = -camera[0] (dpitch, + = up) in degrees,
     i.e. the Mineflayer convention of the training data, then scaled by ``camera_linear``.
     """
-    action = validate_action(action, agent)
+    return _model_vector(validate_action(action, agent))
+
+
+def _model_vector(action: Mapping[str, Any]) -> np.ndarray:
+    """``env_action_to_model_vector`` of an action ``validate_action`` already returned."""
     vec_25 = np.zeros(MODEL_ACTION_DIM, dtype=np.float32)
     for key in BINARY_KEYS:
         vec_25[MODEL_INDEX[key]] = action[key]

@@ -38,7 +38,14 @@ from solaris_env.dream_env import (
     world_actions,
 )
 from solaris_env.engine.bots.runner import PLAYER_NAMES
-from solaris_env.env_common import check_agent_actions, check_options, side_by_side
+from solaris_env.env_common import (
+    check_agent_actions,
+    check_int,
+    check_options,
+    check_seed,
+    episode_rng,
+    side_by_side,
+)
 from solaris_env.spaces import make_action_space
 from solaris_env.start_scenes import StartFrames
 from solaris_env.tasks import make_task
@@ -67,10 +74,8 @@ class DreamVectorEnv(VectorEnv):
                  max_steps: int = 200, task=None, start_states: Any = "bundled",
                  autoreset_mode: Any = AutoresetMode.SAME_STEP, render_mode: str | None = None, seed_model: int = 0,
                  model=None):
-        if not isinstance(num_worlds, (int, np.integer)) or num_worlds < 1:
-            raise ValueError(f"num_worlds must be an int >= 1, got {num_worlds!r}")
-        if max_steps < 1:
-            raise ValueError(f"max_steps must be >= 1, got {max_steps}")
+        num_worlds = check_int(num_worlds, "num_worlds")
+        max_steps = check_int(max_steps, "max_steps")
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         self.autoreset_mode = _autoreset_mode(autoreset_mode)
@@ -96,24 +101,33 @@ class DreamVectorEnv(VectorEnv):
         self._obs_NPHW3: np.ndarray | None = None
         self._steps_N = np.zeros(self.num_envs, np.int64)
         self._ended_N = np.zeros(self.num_envs, bool)  # ended at the last step (NEXT_STEP / DISABLED)
+        # [dpitch, dyaw] deg each player still has to turn (``spaces.step_ticks``, as DreamParallelEnv)
+        self._camera_pending_NP2 = np.zeros((self.num_envs, self.num_players, 2))
 
     # -- reset ------------------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
         """Start every world, or only those in ``options["reset_mask"]`` ((N,) bool; needs a previous reset).
 
         Start frames: ``options["frames"]`` (N, P, H, W, 3) uint8, ``options["engine_state"]`` (one EngineState
-        for every world, or a list of N), else ``start_states`` sampled with ``seed``. Other keys are ignored.
+        for every world, or a list of N), else ``start_states`` sampled with ``seed``. Any other key raises
+        ValueError. ``seed``: None or an int >= 0 (numpy integers too; not a bool). Everything is checked before
+        anything is drawn: a reset that raises changes nothing (not the seed stream, not the worlds).
         """
-        if seed is not None or self._np_random is None:
-            self._np_random, self._np_random_seed = seeding.np_random(seed)
-        options = check_options(options)
+        seed = check_seed(seed)
+        options = check_options(options, ("frames", "engine_state", "reset_mask"), ignored=())
         mask_N = self._reset_mask(options.get("reset_mask"))
-        first_NPHW3, starts = self._start_frames(options, mask_N)
-        model_seed = int(self._np_random.integers(2**31 - 1))
+        given = self._given_starts(options, mask_N)
+        fresh = seed is not None or self._np_random is None  # else continue the stream (on a copy, kept at the end)
+        rng, rng_seed = seeding.np_random(seed) if fresh else (episode_rng(self._np_random, None), None)
+        first_NPHW3, starts = self._start_frames(given, mask_N, rng)
+        model_seed = int(rng.integers(2**31 - 1))
         if mask_N.all():
             self._state = self.model.init(first_NPHW3, model_seed)
         else:
             self._state = self.model.reset_worlds(self._state, mask_N, first_NPHW3, model_seed)
+        if fresh:
+            self._np_random_seed = rng_seed
+        self._np_random = rng
         obs = self._restart(mask_N)
         infos = {"step": self._steps_N.copy(), "_step": np.ones(self.num_envs, bool)}
         infos["start"] = np.array(starts, dtype=object)
@@ -130,25 +144,40 @@ class DreamVectorEnv(VectorEnv):
             raise RuntimeError("a partial reset needs a full reset() first")
         return mask
 
-    def _start_frames(self, options: dict, mask_N: np.ndarray) -> tuple[np.ndarray, list]:
-        """(N, P, H, W, 3) start frames (rows outside ``mask_N`` are filler) and per-world start infos."""
+    def _given_starts(self, options: dict, mask_N: np.ndarray) -> list | np.ndarray | None:
+        """The start frames ``options`` give, checked (nothing drawn): (N, P, H, W, 3) uint8 for ``"frames"``, a
+        list of N (frames, start info) or None (sample that world) for ``"engine_state"``, None for neither."""
         shape = (self.num_envs, self.num_players, self.height, self.width, 3)
+        if "frames" in options and "engine_state" in options:
+            raise ValueError("options may give 'frames' or 'engine_state', not both")
         if "frames" in options:
             frames = options["frames"]
             if getattr(frames, "dtype", None) != np.uint8 or tuple(getattr(frames, "shape", ())) != shape:
                 raise ValueError(f"options['frames'] must be a uint8 array of shape {shape}, got dtype "
                                  f"{getattr(frames, 'dtype', None)} shape {getattr(frames, 'shape', None)}")
-            return np.asarray(frames), [{"start": "frames"} if m else None for m in mask_N]
+            return np.asarray(frames)
         states = options.get("engine_state")
-        if states is not None and not isinstance(states, (list, tuple)):
+        if states is None:
+            return None
+        if not isinstance(states, (list, tuple)):
             states = [states] * self.num_envs
-        if states is not None and len(states) != self.num_envs:
+        if len(states) != self.num_envs:
             raise ValueError(f"options['engine_state'] must be one EngineState or a list of {self.num_envs}, "
                              f"got a list of {len(states)}")
+        return [self.start_frames.from_options({"engine_state": states[i]}) if m else None
+                for i, m in enumerate(mask_N)]
+
+    def _start_frames(self, given: list | np.ndarray | None, mask_N: np.ndarray,
+                      rng: np.random.Generator) -> tuple[np.ndarray, list]:
+        """(N, P, H, W, 3) start frames (rows outside ``mask_N`` are filler) and per-world start infos: the
+        ``given`` ones (``_given_starts``), the others sampled from ``start_states`` with ``rng``."""
+        if isinstance(given, np.ndarray):
+            return given, [{"start": "frames"} if m else None for m in mask_N]
+        shape = (self.num_envs, self.num_players, self.height, self.width, 3)
         out, starts = np.zeros(shape, np.uint8), [None] * self.num_envs
         for i in np.flatnonzero(mask_N):
-            given = None if states is None else self.start_frames.from_options({"engine_state": states[i]})
-            out[i], starts[i] = given if given is not None else self.start_frames.sample(self._np_random)
+            start = None if given is None else given[i]
+            out[i], starts[i] = start if start is not None else self.start_frames.sample(rng)
         return out, starts
 
     def _restart(self, mask_N: np.ndarray) -> np.ndarray:
@@ -159,6 +188,7 @@ class DreamVectorEnv(VectorEnv):
         self._obs_NPHW3[mask_N] = frame0_NPHW3[mask_N]
         self._steps_N[mask_N] = 0
         self._ended_N[mask_N] = False
+        self._camera_pending_NP2[mask_N] = 0.0
         for i in np.flatnonzero(mask_N):
             self.tasks[i].reset(self._obs_NPHW3[i])
         return self._obs_NPHW3.copy()
@@ -170,8 +200,9 @@ class DreamVectorEnv(VectorEnv):
         if self.autoreset_mode == AutoresetMode.DISABLED and self._ended_N.any():
             raise RuntimeError(f"worlds {np.flatnonzero(self._ended_N).tolist()} ended and autoreset is disabled; "
                                "reset them with reset(options={'reset_mask': mask})")
-        ticks_NPk25, per_world = self._world_actions(actions)
+        ticks_NPk25, per_world, pending_NP2 = self._world_actions(actions)
         frames_NPkHW3, self._state = self.model.step(self._state, ticks_NPk25)
+        self._camera_pending_NP2 = pending_NP2
         frames_NPkHW3 = np.array(frames_NPkHW3)
         obs = frames_NPkHW3[:, :, -1].copy()
         rewards_NP = np.zeros((self.num_envs, self.num_players), np.float32)
@@ -183,7 +214,7 @@ class DreamVectorEnv(VectorEnv):
             rewards_NP[i], terminations_N[i] = outcome.rewards_P, outcome.terminations_P.any()
         self._steps_N[~restarting_N] += 1
         truncations_N = (self._steps_N >= self.max_steps) & ~terminations_N & ~restarting_N
-        infos = {"frames": frames_NPkHW3}
+        infos = {"frames": frames_NPkHW3, "camera_pending": pending_NP2.astype(np.float32)}
         self._obs_NPHW3 = obs.copy()  # kept for autoresets and render; callers get their own arrays
         ended_N = terminations_N | truncations_N
         if self.autoreset_mode == AutoresetMode.SAME_STEP and ended_N.any():
@@ -202,22 +233,25 @@ class DreamVectorEnv(VectorEnv):
         return obs, rewards_NP, terminations_N, truncations_N, infos
 
     def _autoreset(self, mask_N: np.ndarray) -> np.ndarray:
-        first_NPHW3, _ = self._start_frames({}, mask_N)
+        first_NPHW3, _ = self._start_frames(None, mask_N, self._np_random)
         self._state = self.model.reset_worlds(self._state, mask_N, first_NPHW3, int(self._np_random.integers(2**31 - 1)))
         return self._restart(mask_N)
 
-    def _world_actions(self, actions: Any) -> tuple[np.ndarray, list[list[dict]]]:
-        """Batched or per-world actions -> (N, P, k, 25) model ticks and, per world, the P env actions."""
+    def _world_actions(self, actions: Any) -> tuple[np.ndarray, list[list[dict]], np.ndarray]:
+        """Batched or per-world actions -> (N, P, k, 25) model ticks, per world the P env actions, and the
+        (N, P, 2) camera turns carried to the next step (``dream_env.world_actions``)."""
         per_world = self._split_actions(actions)
-        ticks, env_actions = [], []
+        ticks, env_actions, pending = [], [], []
         for i, world in enumerate(per_world):
             try:
-                t, a = world_actions(world, self.possible_agents, self.possible_agents, self.frames_per_step)
+                t, a, p = world_actions(world, self.possible_agents, self.possible_agents, self.frames_per_step,
+                                        self._camera_pending_NP2[i])
             except (ValueError, TypeError) as err:
                 raise type(err)(f"world {i}: {err}") from err
             ticks.append(t)
             env_actions.append(a)
-        return np.stack(ticks), env_actions
+            pending.append(p)
+        return np.stack(ticks), env_actions, np.stack(pending)
 
     def _split_actions(self, actions: Any) -> list:
         n = self.num_envs

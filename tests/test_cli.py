@@ -215,3 +215,79 @@ def test_spawn_workers_write_the_same_data(train_out, tmp_path):
     for rel in mine:
         if rel.suffix == ".json":
             assert (tmp_path / rel).read_text() == (train_out / rel).read_text(), rel
+
+
+# ---------------------------------------------------------------------------------------------
+# Argument errors and Ctrl-C
+# ---------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("flag,value", [("--episodes", "-3"), ("--episodes", "0"), ("--workers", "0"),
+                                        ("--instances", "0"), ("--chunk-ticks", "-1"), ("--instance-offset", "-2")])
+def test_collect_refuses_nonsense_counts_naming_the_argument(tmp_path, capsys, flag, value):
+    args = ["collect", "--out", str(tmp_path / "out"), "--episodes", "1", flag, value]
+    with pytest.raises(SystemExit) as err:
+        cli.main(args)
+    assert err.value.code == 2 and f"argument {flag}: expected an integer >= " in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
+
+
+def _interrupted(args, delay_s, cwd):
+    """Run ``solaris-engine ARGS`` in a subprocess, send it SIGINT ``delay_s`` after the command started (its first
+    line on stderr; before ``main`` runs, during the interpreter's start-up, Ctrl-C is Python's own): (status,
+    stderr, seconds from the signal to the exit)."""
+    import signal
+
+    code = "import sys; from solaris_env.engine.cli import main; sys.exit(main(sys.argv[1:]))"
+    proc = subprocess.Popen([sys.executable, "-c", code, *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, cwd=cwd)
+    first = proc.stderr.readline()
+    time.sleep(delay_s)
+    sent = time.perf_counter()
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    return proc.returncode, first + err, time.perf_counter() - sent
+
+
+def _assert_interrupted_cleanly(status, err, seconds):
+    assert status == 130, err
+    assert "Traceback" not in err and "Fatal" not in err and "Segmentation" not in err, err
+    lines = [line for line in err.replace("\r", "\n").splitlines() if "interrupted" in line]
+    assert lines == ["solaris-engine: interrupted"], err
+    assert seconds < 10, seconds
+
+
+@pytest.mark.parametrize("delay_s", [0.0, 1.5, 4.0])
+def test_ctrl_c_during_collect_exits_130_with_one_line(tmp_path, delay_s):
+    """Ctrl-C as the collect starts, while JAX compiles the renderer, or while rendering: status 130 and one line
+    (it used to end in "Fatal Python error: Segmentation fault" when it hit the compile)."""
+    args = ["collect", "--out", str(tmp_path / "out"), "--episodes", "2", "--resolution", "32", "--seed", "5"]
+    _assert_interrupted_cleanly(*_interrupted(args, delay_s, tmp_path))
+
+
+@pytest.mark.slow
+def test_a_collect_interrupted_by_ctrl_c_resumes(tmp_path):
+    args = ["collect", "--out", str(tmp_path / "out"), "--episodes", "2", "--resolution", "32", "--seed", "5",
+            "--workers", "2"]
+    _assert_interrupted_cleanly(*_interrupted(args, 6.0, tmp_path))
+    assert cli.main(args[:-2]) == 0
+    assert len(list((tmp_path / "out" / "duet").rglob("*.mp4"))) == 4
+
+
+def test_a_main_thread_stuck_in_native_code_is_still_ended_by_ctrl_c(tmp_path):
+    """The watcher thread ends the process after the grace period when the main thread cannot get the
+    KeyboardInterrupt (simulated: a handler that swallows it)."""
+    import signal
+
+    code = ("import signal, sys, time\n"
+            "from solaris_env.cli_support import interrupts_exit_cleanly\n"
+            "with interrupts_exit_cleanly('stuck', grace_s=0.5):\n"
+            "    signal.signal(signal.SIGINT, lambda *a: None)\n"
+            "    print('ready', flush=True)\n"
+            "    time.sleep(60)\n")
+    proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    assert proc.stdout.readline().strip() == "ready"
+    start = time.perf_counter()
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=30)
+    assert proc.returncode == 130 and err.strip() == "stuck: interrupted" and time.perf_counter() - start < 5

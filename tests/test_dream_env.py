@@ -10,10 +10,11 @@ import solaris_env
 from solaris_env import DreamParallelEnv, RealParallelEnv
 from solaris_env.dream_env import ONCE_KEYS, expand_action
 from solaris_env.spaces import (
+    CAMERA_SCALE_DEG,
+    CAMERA_TICK_LIMIT_DEG,
     CAMERA_X_INDEX,
     CAMERA_Y_INDEX,
     MODEL_INDEX,
-    env_action_to_model_vector,
     noop,
 )
 
@@ -154,18 +155,22 @@ def test_truncation_at_max_steps_then_agents_leave(make):
         env.step({})
 
 
-def test_expand_action_once_keys_and_camera_on_the_first_tick_only():
+def test_expand_action_once_keys_on_the_first_tick_and_the_camera_spread_within_the_trained_range():
     action = noop()
     for key in ("forward", "sprint") + ONCE_KEYS:
         action[key] = 1
     action["camera"] = np.array([5.0, -10.0], np.float32)
-    ticks = expand_action(env_action_to_model_vector(action), 4)
-    assert ticks.shape == (4, 25)
-    assert np.array_equal(ticks[0], env_action_to_model_vector(action))
+    ticks, pending = expand_action(action, 4)
+    assert ticks.shape == (4, 25) and not pending.any()
     assert (ticks[:, MODEL_INDEX["forward"]] == 1).all() and (ticks[:, MODEL_INDEX["sprint"]] == 1).all()
     for key in ONCE_KEYS:
         assert ticks[0, MODEL_INDEX[key]] == 1 and (ticks[1:, MODEL_INDEX[key]] == 0).all(), key
-    assert (ticks[1:, [CAMERA_X_INDEX, CAMERA_Y_INDEX]] == 0).all()
+    # model units are degrees / CAMERA_SCALE_DEG, Mineflayer signs (+ = left / up); at most 8.59 deg a tick
+    deg = ticks[:, [CAMERA_X_INDEX, CAMERA_Y_INDEX]] * CAMERA_SCALE_DEG
+    np.testing.assert_allclose(deg.sum(0), [10.0, -5.0], atol=1e-5)
+    assert np.abs(deg).max() <= CAMERA_TICK_LIMIT_DEG + 1e-5
+    np.testing.assert_allclose(deg[0], [CAMERA_TICK_LIMIT_DEG, -5.0], atol=1e-5)
+    assert not deg[2:].any()
 
 
 def test_factory_and_constructor_checks(model):

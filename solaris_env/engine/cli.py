@@ -21,7 +21,9 @@ Re-running a collect skips finished episodes (all files present). Aborted episod
 the episode hit its time cap) are still written, with ``encountered_error`` /
 ``peer_encountered_error`` in episode_info and ``aborted`` / ``abort_reason`` in the sidecar; a
 crash while simulating, rendering or writing one episode is reported, leaves none of its files, and
-makes the exit status 1 after the other episodes are done.
+makes the exit status 1 after the other episodes are done. Ctrl-C, at any moment (a JAX compile included), ends
+the collect with one line, ``solaris-engine: interrupted``, and status 130; a re-run resumes. Argument and other
+errors are one line too (``--debug`` shows the traceback; ``solaris_env.cli_support``).
 
 Heavy modules (numpy, jax, the renderer, OpenCV) are imported inside the commands so that
 ``--help`` is instant.
@@ -36,6 +38,13 @@ import time
 import traceback
 from dataclasses import dataclass
 from pathlib import Path
+
+from solaris_env.cli_support import (
+    add_debug_flag,
+    non_negative_int,
+    positive_int,
+    run_command,
+)
 
 # The 7 eval sets of the paper (docs/engine.md §6, docs/data-format.md §5).
 SPEC_EVAL_TYPES = ("rotationEval", "translationEval", "structureEval", "bothLookAwayEval", "oneLooksAwayEval",
@@ -142,6 +151,15 @@ def get_renderer(height: int, width: int):
     return _RENDERER
 
 
+def _init_worker(height: int, width: int) -> None:
+    """Pool worker start: leave Ctrl-C to the parent (it stops the pool and prints the one line), build the
+    renderer once."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    get_renderer(height, width)
+
+
 def collect_one(job: Job) -> dict:
     """Simulate, render and write one episode (in the current process, with its renderer)."""
     from solaris_env.engine.bots.runner import EpisodeConfig, run_episode
@@ -185,7 +203,7 @@ def run_jobs(jobs: list[Job], workers: int) -> list[dict]:
         import multiprocessing as mp
 
         size = (jobs[0].height, jobs[0].width)
-        with mp.get_context("spawn").Pool(workers, initializer=get_renderer, initargs=size) as pool:
+        with mp.get_context("spawn").Pool(workers, initializer=_init_worker, initargs=size) as pool:
             for res in pool.imap_unordered(collect_one, jobs):
                 done(res)
     return results
@@ -386,33 +404,37 @@ def cmd_export_vpt(args) -> int:
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="solaris-engine", description=__doc__.split("\n\n")[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_debug_flag(parser, top=True)
     sub = parser.add_subparsers(dest="command", required=True)
 
     c = sub.add_parser("collect", help="simulate, render and record episodes")
     c.add_argument("--out", required=True, help="output root (gets duet/{train,test}/ or eval/<Type>/test/)")
-    c.add_argument("--episodes", type=int, default=None,
+    c.add_argument("--episodes", type=positive_int, default=None,
                    help=f"training: number of episodes; eval: episodes per type (default {DEFAULT_EVAL_EPISODES})")
     c.add_argument("--world", choices=("flat", "normal", "mixed"), default="mixed",
                    help="training world kind; mixed = flat on even instances, normal on odd ones")
     c.add_argument("--resolution", type=parse_resolution, default=(64, 64), help="R (square) or WxH, e.g. 1280x720")
     c.add_argument("--seed", type=int, default=0, help="collect seed; also the training batch id")
-    c.add_argument("--workers", type=int, default=1, help="processes, each with its own renderer (1 = in-process)")
-    c.add_argument("--instances", type=int, default=2, help="training: episode e runs on instance e mod this")
-    c.add_argument("--instance-offset", type=int, default=0, help="added to every instance id")
+    c.add_argument("--workers", type=positive_int, default=1,
+                   help="processes, each with its own renderer (1 = in-process)")
+    c.add_argument("--instances", type=positive_int, default=2, help="training: episode e runs on instance e mod this")
+    c.add_argument("--instance-offset", type=non_negative_int, default=0, help="added to every instance id")
     c.add_argument("--test-fraction", type=float, default=0.01, help="training: deterministic fraction in duet/test")
     c.add_argument("--types", nargs="+", default=None, help="training: sample only these episode types (also the opt-in ones, e.g. lookAround)")
     c.add_argument("--eval", action="store_true", help="collect the eval sets instead of training data")
     c.add_argument("--eval-types", nargs="+", default=None, help="eval: these types (default: all registered)")
-    c.add_argument("--chunk-ticks", type=int, default=None,
+    c.add_argument("--chunk-ticks", type=positive_int, default=None,
                    help=f"ticks rendered per renderer call (x 2 views); default: <= {MAX_CHUNK_TICKS} within "
                         f"{CHUNK_PIXEL_BUDGET} pixels")
     c.add_argument("--backend", choices=("voxel", "minecraft"), default="voxel",
                    help="voxel: our engine; minecraft: real Minecraft 1.20.1 (needs `setup-minecraft`)")
+    add_debug_flag(c)
     c.set_defaults(func=cmd_collect)
 
     m = sub.add_parser("setup-minecraft", help="install the real-Minecraft backend (apt packages, npm ci, patch)")
     m.add_argument("--skip-apt", action="store_true", help="fail instead of running apt-get for missing packages")
     m.add_argument("--force-npm", action="store_true", help="run npm ci even if node_modules looks built")
+    add_debug_flag(m)
     m.set_defaults(func=cmd_setup_minecraft)
 
     p = sub.add_parser("preview", help="contact sheet PNG + side-by-side mp4 of collected episodes")
@@ -422,21 +444,23 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--episode", type=int, default=0, help="index (sorted like the loader) of the episode to video")
     p.add_argument("--rows", type=int, default=PREVIEW_EPISODES, help="episodes in the contact sheet")
     p.add_argument("--columns", type=int, default=PREVIEW_COLUMNS, help="frames per row")
+    add_debug_flag(p)
     p.set_defaults(func=cmd_preview)
 
     v = sub.add_parser("export-vpt", help="export each bot recording of a collect as a single-player VPT episode")
     v.add_argument("src", help="a collect output dir (reads SRC/duet/{train,test})")
     v.add_argument("--out", required=True, help="output root (gets vpt/{train,test}/episodes_info.json + engine/)")
     v.add_argument("--copy", action="store_true", help="copy the mp4s instead of hard-linking them")
+    add_debug_flag(v)
     v.set_defaults(func=cmd_export_vpt)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Errors print one line (``--debug``: the traceback); Ctrl-C prints one line and exits with status 130
+    (``solaris_env.cli_support``)."""
     args = build_parser().parse_args(argv)
-    if getattr(args, "workers", 1) < 1:
-        raise SystemExit(f"--workers must be >= 1, got {args.workers}")
-    return args.func(args)
+    return run_command("solaris-engine", args.func, args, debug=args.debug)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -130,6 +130,8 @@ class SB3VecEnv(VecEnv):
         return obs_NPHW3[:, self._learner_index].reshape(self.num_envs, *obs_NPHW3.shape[2:]).copy()
 
     def _world_actions(self, flat_actions: np.ndarray) -> list[dict]:
+        """Every slot's flat action decoded (ValueError naming the slot) before any opponent acts, so a rejected
+        batch changes nothing (no opponent draws or advances); then the opponents' actions."""
         per_world = []
         for w in range(self.num_worlds):
             world = {}
@@ -139,9 +141,10 @@ class SB3VecEnv(VecEnv):
                     world[agent] = self.codec.decode(flat_actions[slot])
                 except ValueError as err:
                     raise ValueError(f"SB3 env slot {slot} (world {w}, agent {agent!r}): {err}") from err
+            per_world.append(world)
+        for w, world in enumerate(per_world):
             for k, (agent, p) in enumerate(zip(self.others, self._other_index)):
                 world[agent] = self.opponents[w][k].act(self._world_obs_NPHW3[w, p])
-            per_world.append(world)
         return per_world
 
     def _reset_opponents(self, w: int, rng: np.random.Generator) -> None:

@@ -18,7 +18,8 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from solaris_env.env_common import available_render_modes
+from solaris_env.env_common import available_render_modes, check_seed
+from solaris_env.spaces import validate_action
 from solaris_env.wrappers.opponents import Opponent, make_opponent
 
 
@@ -32,7 +33,8 @@ class SingleAgentEnv(gym.Env):
             factory, or a callable ``observation -> env action`` (a frozen policy). One Opponent per player.
 
     The episode ends when the learning agent terminates or is truncated. ``info`` is the learning agent's
-    info plus ``"others"``: the other agents' rewards of the step.
+    info plus ``"others"``: the other agents' rewards of the step. A ``step`` or ``reset`` that raises (a bad
+    action, seed or option) changes nothing: the learner's action is checked before the opponents act.
     """
 
     def __init__(self, env: Any, agent: str | None = None, opponent: Any = "random"):
@@ -51,8 +53,10 @@ class SingleAgentEnv(gym.Env):
         self._obs: dict | None = None
 
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
-        super().reset(seed=seed)
+        # the env checks seed and options before anything is drawn; the wrapper's own generator (the opponents'
+        # seeds) is seeded only once that reset has succeeded, so a failed reset changes nothing
         obs, infos = self.env.reset(seed=seed, options=options)
+        super().reset(seed=check_seed(seed))  # numpy integer seeds are fine
         seeds = self.np_random.integers(2**31 - 1, size=len(self.others))
         for a, s in zip(self.others, seeds):
             self.opponents[a].reset(self.env.unwrapped, a, int(s))
@@ -62,7 +66,9 @@ class SingleAgentEnv(gym.Env):
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict]:
         if self._obs is None or self.agent not in self.env.agents:
             raise RuntimeError("step() called before reset() or after the episode ended; call reset()")
-        actions = {self.agent: action}
+        # check the learner's action before any opponent acts (draws randomness, advances a script): a rejected
+        # action must change nothing
+        actions = {self.agent: validate_action(action, agent=self.agent)}
         for a in self.others:
             if a in self.env.agents:
                 actions[a] = self.opponents[a].act(self._obs[a])

@@ -68,8 +68,8 @@ class RecordVideo(BaseParallelWrapper):
         self._writer: Mp4Writer | None = None
 
     def reset(self, seed: int | None = None, options: dict | None = None):
+        out = self.env.reset(seed=seed, options=options)  # a reset that raises leaves the episode (and its video) on
         self._finish()
-        out = self.env.reset(seed=seed, options=options)
         self.episode += 1
         if self.episodes is None or self.episode in self.episodes:
             self._writer = Mp4Writer(self.folder / f"{self.name_prefix}-episode-{self.episode}.mp4")

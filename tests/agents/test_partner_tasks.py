@@ -24,6 +24,15 @@ def turn(dyaw_deg: float, **keys) -> dict:
     return a
 
 
+def turn_fully(env, dyaw_deg: float):
+    """Alpha turns by ``dyaw_deg``, Bravo stands; steps on until the whole turn is made (the engine turns at most
+    8.59 deg a tick and carries the rest over, ``spaces.step_ticks``); returns the last step's outputs."""
+    out = env.step({"Alpha": turn(dyaw_deg), "Bravo": noop()})
+    while out[4]["Alpha"]["camera_pending"].any():
+        out = env.step({"Alpha": noop(), "Bravo": noop()})
+    return out
+
+
 def test_face_partner_truth_is_one_when_the_partner_is_centred(real):
     env = real(task="face_partner_truth")
     _, infos = env.reset(seed=0)  # a constructed state: the players spawn facing each other
@@ -33,10 +42,10 @@ def test_face_partner_truth_is_one_when_the_partner_is_centred(real):
         assert partner["pixels"] >= 2 and abs(partner["u"] - 0.5) < 0.05
     _, rewards, terminations, _, _ = env.step({a: noop() for a in env.agents})
     assert rewards == {"Alpha": 1.0, "Bravo": 1.0} and not any(terminations.values())
-    _, rewards, _, _, infos = env.step({"Alpha": turn(35.0), "Bravo": noop()})  # partner pushed to the left third
+    _, rewards, _, _, infos = turn_fully(env, 35.0)  # partner pushed to the left third
     assert rewards == {"Alpha": 0.0, "Bravo": 1.0}
     assert infos["Alpha"]["screen"]["Bravo"]["u"] < 1 / 3
-    _, rewards, _, _, infos = env.step({"Alpha": turn(150.0), "Bravo": noop()})  # behind
+    _, rewards, _, _, infos = turn_fully(env, 150.0)  # behind
     assert rewards["Alpha"] == 0.0 and infos["Alpha"]["screen"]["Bravo"] == {"pixels": 0, "u": None}
 
 

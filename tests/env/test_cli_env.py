@@ -62,11 +62,42 @@ def test_rollout_dream_test_preset(tmp_path):
     assert frame_count(out) == (1 + 3 * 4, 64, 32)
 
 
-def test_rollout_argument_errors(tmp_path):
+def test_rollout_argument_errors(tmp_path, capsys):
     with pytest.raises(SystemExit):
         cli_env.main(["rollout", "--kind", "moon"])
-    with pytest.raises(SystemExit, match="steps"):
-        cli_env.main(["rollout", "--steps", "0"])
+    for bad in (["--steps", "0"], ["--steps", "2.5"], ["--players", "-1"], ["--seed", "-3"]):
+        with pytest.raises(SystemExit) as err:
+            cli_env.main(["rollout", *bad])
+        assert err.value.code == 2 and f"argument {bad[0]}: expected an integer" in capsys.readouterr().err
+
+
+def test_rollout_checks_the_output_path_before_building_the_model(tmp_path, monkeypatch):
+    import solaris_env.dream_env
+
+    def no_model(*args, **kwargs):
+        raise AssertionError("the model was built before the output path was checked")
+
+    monkeypatch.setattr(solaris_env.dream_env, "build_model", no_model)
+    (tmp_path / "taken.mp4").mkdir()
+    (tmp_path / "file").write_text("x")
+    for out, says in [("noext", "ending in .mp4"), ("video.avi", "ending in .mp4"),
+                      (tmp_path / "taken.mp4", "is a directory"), (tmp_path / "file" / "a.mp4", "not a directory")]:
+        with pytest.raises(SystemExit, match=f"solaris-env: error: ValueError: --out: .*{says}"):
+            cli_env.main(["rollout", "--kind", "dream", "--out", str(out)])
+    with pytest.raises(SystemExit, match="--rrd: expected a file name ending in .rrd"):
+        cli_env.main(["rollout", "--kind", "dream", "--out", str(tmp_path / "a.mp4"), "--rrd", str(tmp_path / "a")])
+
+
+def test_cli_errors_are_one_line_and_debug_shows_the_traceback(tmp_path):
+    missing = tmp_path / "no_such_checkpoint"
+    args = ["rollout", "--kind", "dream", "--checkpoint", str(missing), "--out", str(tmp_path / "a.mp4")]
+    code = "import sys; from solaris_env.cli_env import main; sys.exit(main(sys.argv[1:]))"
+    out = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, check=False)
+    lines = out.stderr.strip().splitlines()
+    assert out.returncode == 1 and len(lines) == 1 and "Traceback" not in out.stderr, out.stderr
+    assert lines[0].startswith("solaris-env: error: ") and str(missing) in lines[0] and "--debug" in lines[0]
+    out = subprocess.run([sys.executable, "-c", code, "--debug", *args], capture_output=True, text=True, check=False)
+    assert out.returncode == 1 and "Traceback" in out.stderr and str(missing) in out.stderr
 
 
 def test_play_window_without_a_display_is_a_clear_error(monkeypatch):

@@ -199,3 +199,49 @@ def test_n_step_determinism_same_seed_same_frames_other_seed_differs(dream):
     a, b = rollout(7), rollout(7)
     assert np.array_equal(a, b)
     assert not np.array_equal(a, rollout(8))
+
+
+ROLLOUT_IN_A_PROCESS = """
+import os, sys
+import jax
+cache = os.environ.get("SOLARIS_JAX_CACHE", os.path.expanduser("~/.cache/solaris_env/jax"))
+if cache:
+    jax.config.update("jax_compilation_cache_dir", cache)
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
+import numpy as np
+from solaris_env.dream_env import DreamParallelEnv, build_model
+from solaris_env.spaces import noop
+
+env = DreamParallelEnv(model=build_model(None, "test", num_players=2))
+obs, _ = env.reset(seed=7)
+frames = [np.stack([obs[a] for a in env.possible_agents])]
+rng = np.random.default_rng(123)
+for _ in range(6):
+    actions = {}
+    for a in env.agents:
+        act = noop()
+        act["forward"], act["jump"] = int(rng.integers(2)), int(rng.integers(2))
+        act["camera"] = rng.uniform(-40, 40, 2).astype(np.float32)
+        actions[a] = act
+    env.step(actions)
+    frames.append(env.step_frames().reshape(-1, env.height, env.width, 3))
+np.save(sys.argv[1], np.concatenate(frames))
+"""
+
+
+@pytest.mark.slow  # ~20-40 s: two fresh processes load the test model's programs
+def test_same_seed_and_actions_give_identical_frames_in_two_processes(tmp_path):
+    """The README's promise across processes (the dream env docstring: bit-exact on one machine and JAX build)."""
+    import subprocess
+    import sys
+
+    paths = [tmp_path / f"frames_{i}.npy" for i in range(2)]
+    procs = [subprocess.Popen([sys.executable, "-c", ROLLOUT_IN_A_PROCESS, str(p)], stderr=subprocess.PIPE, text=True)
+             for p in paths]
+    for proc in procs:
+        _, err = proc.communicate(timeout=600)
+        assert proc.returncode == 0, err
+    a, b = (np.load(p).astype(np.int16) for p in paths)
+    diff = np.abs(a - b)
+    assert a.shape == b.shape and diff.max() == 0, \
+        f"frames differ across processes: max {diff.max()} grey levels on {(diff > 0).mean():.4%} of the values"

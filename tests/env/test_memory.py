@@ -9,6 +9,7 @@ import gc
 import os
 
 import numpy as np
+import pytest
 
 from solaris_env.spaces import noop
 
@@ -69,3 +70,36 @@ def test_vector_env_memory_is_flat(vector):
         env.step(steps)
     growth = rss_mb() - base
     assert growth < GROWTH_BOUND_MB, f"RSS grew {growth:.1f} MB after warm-up (from {base:.0f} MB)"
+
+
+SOAK_STEPS = int(os.environ.get("SOLARIS_SOAK_STEPS", "10000"))
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(os.environ.get("SOLARIS_SOAK") != "1",
+                    reason="soak: set SOLARIS_SOAK=1 (10,000 dream steps; SOLARIS_SOAK_STEPS=N for another length)")
+def test_soak_dream_rollout_with_random_actions_keeps_memory_and_step_time_flat(dream):
+    """SOAK_STEPS steps of uniformly random actions (the whole +-180 deg camera box, so turns are carried over
+    most of the time) in one episode: RSS within +5 % of its value after the warm-up, and the median step time
+    of the last tenth within +30 % of the first tenth's (medians: the machine is shared)."""
+    import time
+
+    env = dream(max_steps=WARMUP_STEPS + SOAK_STEPS + 1)
+    env.reset(seed=0)
+    for i, a in enumerate(env.possible_agents):
+        env.action_space(a).seed(i)
+    times, base = [], None
+    for t in range(WARMUP_STEPS + SOAK_STEPS):
+        if t == WARMUP_STEPS:
+            base = rss_mb()
+        actions = {a: env.action_space(a).sample() for a in env.agents}
+        start = time.perf_counter()
+        env.step(actions)
+        times.append(time.perf_counter() - start)
+    end = rss_mb()
+    tenth = max(1, SOAK_STEPS // 10)
+    first, last = np.median(times[WARMUP_STEPS:WARMUP_STEPS + tenth]), np.median(times[-tenth:])
+    print(f"soak: {SOAK_STEPS} steps, RSS {base:.0f} -> {end:.0f} MB ({100 * (end / base - 1):+.1f} %), "
+          f"median step {1e3 * first:.1f} -> {1e3 * last:.1f} ms")
+    assert end <= 1.05 * base, f"RSS grew from {base:.0f} to {end:.0f} MB"
+    assert last <= 1.3 * first, f"step time grew from {1e3 * first:.1f} to {1e3 * last:.1f} ms"

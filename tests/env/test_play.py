@@ -20,7 +20,7 @@ from websockets.exceptions import ConnectionClosed, InvalidStatus
 from websockets.sync.client import connect
 
 from solaris_env import play
-from solaris_env.spaces import BINARY_KEYS, validate_action
+from solaris_env.spaces import BINARY_KEYS, CAMERA_TICK_LIMIT_DEG, validate_action
 
 # ---------------------------------------------------------------------------------------------
 # PlayControls
@@ -142,6 +142,20 @@ def test_session_drives_the_dream_env(dream):
     assert frame.shape == session.env.step_frames().shape[2:] and np.array_equal(
         frame[..., ::-1], session.env.step_frames()[1, -1])  # Bravo's newest frame, lossless
     assert session.status()["step"] == 3 and controls.pending_deg_2.tolist() == [0.0, 0.0]
+
+
+def test_a_session_turns_at_most_what_one_env_step_turns_and_the_status_shows_the_rest(real, dream):
+    for env, k in ((real(), 1), (real(ticks_per_step=4), 4), (dream(), 4)):
+        session = play.PlaySession(env, agent="Alpha", policy="noop", seed=0)
+        assert session.max_turn_deg == pytest.approx(k * CAMERA_TICK_LIMIT_DEG)
+        controls = play.PlayControls(max_turn_deg=session.max_turn_deg)
+        controls.move_mouse(600, 0)  # 90 deg right: every step turns what it can, the rest waits in the controls
+        steps = 0
+        while controls.pending_deg_2.any():
+            session.step(controls.next_action())
+            steps += 1
+            assert not env._camera_pending_P2.any()  # nothing hidden in the env
+        assert steps == math.ceil(90.0 / (k * CAMERA_TICK_LIMIT_DEG))
 
 
 # ---------------------------------------------------------------------------------------------

@@ -60,15 +60,18 @@ def test_see_other_player_task_uses_ground_truth(real):
     env.reset(seed=0)  # spawned facing each other
     _, rewards, *_ = env.step({a: noop() for a in env.agents})
     assert rewards == {"Alpha": 1.0, "Bravo": 1.0}
-    for _ in range(6):  # Alpha turns 180 degrees away
+    for _ in range(6):  # Alpha turns 180 degrees away (at 8.59 deg per tick: the rest is carried over)
         _, rewards, _, _, infos = env.step({"Alpha": turn(30.0), "Bravo": noop()})
+    while infos["Alpha"]["camera_pending"].any():
+        _, rewards, _, _, infos = env.step({"Alpha": noop(), "Bravo": noop()})
     assert rewards == {"Alpha": 0.0, "Bravo": 1.0}
     assert infos["Alpha"]["sees"] == {"Bravo": False}
 
 
 def test_visual_novelty_rewards_new_views_only(real):
     # a hilly world with trees: a flat world looks the same in every direction (distances < 0.02)
-    env = real(resolution=64, view_distance=48.0, world="normal", task="visual_novelty")
+    # 4 ticks a step: a 30 deg turn fits in one step (at most 8.59 deg a tick; spaces.CAMERA_TICK_LIMIT_DEG)
+    env = real(resolution=64, view_distance=48.0, world="normal", task="visual_novelty", ticks_per_step=4)
     env.reset(seed=1)
     _, rewards, *_ = env.step({a: noop() for a in env.agents})
     assert rewards == {"Alpha": 0.0, "Bravo": 0.0}  # nothing moved: the same view

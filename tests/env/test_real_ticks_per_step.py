@@ -1,10 +1,11 @@
 """RealParallelEnv(ticks_per_step=k): one step plays k engine ticks as the dream env does (the whole action on the
-first tick, then only the held movement keys), renders every tick, and scores the task once."""
+first tick, then only the held movement keys; the camera turn spread over the ticks), renders every tick, and scores
+the task once."""
 
 import numpy as np
 import pytest
 
-from solaris_env.spaces import ONCE_KEYS, noop, tick_actions
+from solaris_env.spaces import CAMERA_TICK_LIMIT_DEG, ONCE_KEYS, noop, tick_actions
 
 
 def act(dyaw: float = 0.0, **keys) -> dict:
@@ -14,14 +15,19 @@ def act(dyaw: float = 0.0, **keys) -> dict:
     return a
 
 
-def test_tick_actions_hold_movement_and_send_once_keys_and_camera_once():
+def test_tick_actions_hold_movement_send_once_keys_once_and_spread_the_camera():
     ticks = tick_actions(act(12.0, forward=1, jump=1, attack=1, **{"hotbar.2": 1}), 4)
-    assert len(ticks) == 4 and ticks[0]["attack"] == 1 and ticks[0]["camera"][1] == 12.0
+    assert len(ticks) == 4 and ticks[0]["attack"] == 1
+    yaw = [t["camera"][1] for t in ticks]  # at most CAMERA_TICK_LIMIT_DEG a tick, from the first tick on
+    assert yaw[0] == np.float32(CAMERA_TICK_LIMIT_DEG) and yaw[2:] == [0.0, 0.0]
+    assert yaw[1] == pytest.approx(12.0 - CAMERA_TICK_LIMIT_DEG, abs=1e-5)
     for t in ticks[1:]:
-        assert t["forward"] == 1 and t["jump"] == 1 and not t["camera"].any()
+        assert t["forward"] == 1 and t["jump"] == 1
         assert all(t[k] == 0 for k in ONCE_KEYS)
     with pytest.raises(ValueError, match="ticks per step"):
         tick_actions(noop(), 0)
+    with pytest.raises(ValueError, match="step_ticks"):  # 40 deg does not fit in 4 ticks: never dropped
+        tick_actions(act(40.0), 4)
 
 
 def test_a_step_of_k_ticks_equals_k_single_ticks(real):

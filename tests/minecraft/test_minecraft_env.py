@@ -16,7 +16,7 @@ from solaris_env.engine.minecraft import setup_problem
 from solaris_env.engine.minecraft.records import EYE_HEIGHT, project_box
 from solaris_env.engine.minecraft.supervisor import _group_alive
 from solaris_env.real_env import RealParallelEnv
-from solaris_env.spaces import noop
+from solaris_env.spaces import CAMERA_TICK_LIMIT_DEG, noop
 
 PROBLEM = setup_problem()
 pytestmark = pytest.mark.minecraft
@@ -48,7 +48,7 @@ def test_unsupported_options_raise_clear_errors():
 
 @pytest.fixture(scope="module")
 def env():
-    env = RealParallelEnv(backend="minecraft", resolution=SIZE, max_steps=15, task="see_other_player")
+    env = RealParallelEnv(backend="minecraft", resolution=SIZE, max_steps=60, task="see_other_player")
     yield env
     env.close()
 
@@ -63,17 +63,26 @@ def _turn_to(info: dict, target: np.ndarray) -> np.ndarray:
     return np.array([-math.degrees(pitch - info["pitch"]), -math.degrees(dyaw)], np.float32)
 
 
+def _finish_turns(env, out):
+    """No-op steps until every camera turn is done (a player turns at most 8.59 deg a tick and the env carries the
+    rest over, ``spaces.step_ticks``): the last step's outputs (``out`` when nothing was pending)."""
+    while any(info["camera_pending"].any() for info in out[4].values()):
+        out = env.step({a: noop() for a in env.agents})
+    return out
+
+
 def _step(env, cameras=None):
+    """One step with these camera turns for the players (the others stand), then until the turns are done."""
     actions = {a: noop() for a in env.agents}
     for a, cam in (cameras or {}).items():
         actions[a]["camera"] = cam
-    return env.step(actions)
+    return _finish_turns(env, env.step(actions))
 
 
 @needs_minecraft
 @pytest.mark.timeout(300)
 def test_parallel_api(env):
-    parallel_api_test(env, num_cycles=20)  # 3 resets; 15 steps each until truncation
+    parallel_api_test(env, num_cycles=20)
     assert env.metadata["name"] == "solaris_real_minecraft_v0"
 
 
@@ -121,7 +130,8 @@ def test_looking_at_the_other_player_shows_it(env):
     obs, _, _, _, infos = _step(env, {"Alpha": np.array([0.0, 25.0], np.float32)})
     a = infos["Alpha"]
     assert a["screen"]["Bravo"]["u"] < 0.4
-    assert a["action_record"]["camera"][0] == pytest.approx(-math.radians(25), abs=0.01)
+    last_tick = 25.0 - 2 * CAMERA_TICK_LIMIT_DEG  # 25 deg: 8.59 + 8.59 + 7.81 over three ticks (steps)
+    assert a["action_record"]["camera"][0] == pytest.approx(-math.radians(last_tick), abs=0.01)
     rows, cols = _truth_box(a, infos["Bravo"]["pos"])
     assert _contrast(obs["Alpha"], rows, cols) > 10, "the frame does not show Bravo where this step's pose puts it"
     centre = slice(SIZE // 2 - (cols.stop - cols.start) // 2, SIZE // 2 + (cols.stop - cols.start + 1) // 2)
@@ -220,8 +230,7 @@ def test_attack_digs_and_use_places_and_reset_restores_the_world():
         _, infos = env.reset(seed=0)
         cell = _ground_in_front(infos["Alpha"])
         # look at the top of the grass block in front (empty hand: the start kit leaves slot 5 empty)
-        obs, _, _, _, infos = env.step({"Alpha": _act(camera=_turn_to(infos["Alpha"], cell + [0.5, 1.0, 0.5])),
-                                        "Bravo": noop()})
+        obs, _, _, _, infos = _step(env, {"Alpha": _turn_to(infos["Alpha"], cell + [0.5, 1.0, 0.5])})
         obs, _, _, _, infos = _step(env)
         before = obs["Alpha"].astype(int)
         # by hand grass takes 0.9 s (hardness 0.6, as the recorder's mineflayer dig): mine is sustained meanwhile
@@ -242,7 +251,8 @@ def test_attack_digs_and_use_places_and_reset_restores_the_world():
         # 3 ticks
         _, infos = env.reset(seed=0)
         assert np.array_equal(_ground_in_front(infos["Alpha"]), cell)
-        env.step({"Alpha": _act(camera=_turn_to(infos["Alpha"], cell + [0.5, 1.0, 0.5]), hotbar_3=1), "Bravo": noop()})
+        _finish_turns(env, env.step({"Alpha": _act(camera=_turn_to(infos["Alpha"], cell + [0.5, 1.0, 0.5]), hotbar_3=1),
+                                     "Bravo": noop()}))
         steps, _, infos = _until(env, _act(attack=1), "mined", 10)
         assert infos["Alpha"]["mined"] == [(*cell.astype(int).tolist(), int(Block.GRASS))] and steps <= 5, steps
         # bad input names the field, in the env and in the bridge's protocol
