@@ -14,20 +14,29 @@ def act(pitch_deg: float = 0.0, yaw_deg: float = 0.0, **keys) -> dict:
     return a
 
 
+def turn(env, pitch_deg: float = 0.0, yaw_deg: float = 0.0, **keys) -> tuple[dict, dict]:
+    """Alpha turns by (pitch, yaw) -- over as many steps as the per-tick turn limit needs (docs/actions.md
+    section 5) -- while Bravo idles; the last step's rewards and infos."""
+    _, rewards, _, _, infos = env.step({"Alpha": act(pitch_deg, yaw_deg, **keys), "Bravo": act()})
+    while np.any(infos["Alpha"]["camera_pending"]):
+        _, rewards, _, _, infos = env.step({"Alpha": act(), "Bravo": act()})
+    return rewards, infos
+
+
 def test_truth_rewards_a_placed_block_in_view_for_every_player_who_sees_it(real):
     env = real(task="build_structure_truth")
     env.reset(seed=0)  # facing each other on flat ground, nothing built
-    _, rewards, *_ = env.step({"Alpha": act(30.0, **{"hotbar.1": 1}), "Bravo": act()})  # look down, pick blocks
+    rewards, _ = turn(env, 30.0, **{"hotbar.1": 1})  # look down, pick blocks
     assert rewards == {"Alpha": 0.0, "Bravo": 0.0}
     _, rewards, _, _, infos = env.step({"Alpha": act(use=1), "Bravo": act()})
     assert len(infos["Alpha"]["placed"]) == 1
     assert rewards == {"Alpha": 1.0, "Bravo": 1.0}  # Alpha's block stands between the two
-    _, rewards, *_ = env.step({"Alpha": act(yaw_deg=180.0), "Bravo": act()})
+    rewards, _ = turn(env, yaw_deg=180.0)
     assert rewards == {"Alpha": 0.0, "Bravo": 1.0}  # Alpha turned its back on it
-    _, rewards, *_ = env.step({"Alpha": act(yaw_deg=180.0), "Bravo": act()})
+    rewards, _ = turn(env, yaw_deg=180.0)
     assert rewards == {"Alpha": 1.0, "Bravo": 1.0}
     env.reset(seed=0)  # a new episode forgets the built blocks
-    _, rewards, *_ = env.step({"Alpha": act(30.0), "Bravo": act()})
+    rewards, _ = turn(env, 30.0)
     assert rewards == {"Alpha": 0.0, "Bravo": 0.0}
 
 
