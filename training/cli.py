@@ -5,6 +5,7 @@
     solaris-train vae-decoder --preset tiny --data data/tiny --out runs/tiny   # decoder on long clips
     solaris-train sp | mp-bidirectional | mp-causal | self-forcing | refiner --data ... --out ...
     solaris-train install runs/tiny/refiner/model                         # -> solaris_env/assets/default
+    solaris-train sprint --preset tiny --init default --out OUT --budget-min 8.5   # training/sprint.py
 
 Each stage reads the previous stage's ``OUT/<stage>/model`` and resumes from its own latest checkpoint
 (``--no-resume`` starts over). Per-stage defaults live in ``training/configs/<preset>.json``;
@@ -62,22 +63,28 @@ def collect_argv(data: Path, cfg, collect_cfg: dict) -> list[str]:
 
 
 def run_stage(stage: str, args, stage_cfg: dict, deadline: float | None = None) -> Path:
-    from training import train
-
     seed = stage_cfg.get("seed", 0) if args.seed is None else args.seed
     kw = {"seed": seed, "steps": args.steps, "resume": not args.no_resume, "fsdp": args.fsdp}
     if deadline is not None:  # an elastic stage (ELASTIC_STAGES)
         kw["deadline"] = deadline
+    return call_stage(stage, args.out, args.data, stage_cfg, **kw)
+
+
+def call_stage(stage: str, out, data, stage_cfg: dict, **kw) -> Path:
+    """Run ``stage``'s function of ``training.train`` on its block of ``stage_cfg`` with keyword arguments
+    ``kw`` (seed, steps, resume, fsdp, deadline, on_model: see the functions)."""
+    from training import train
+
     if stage == "vae":
-        return train.train_vae(args.out, args.data, stage_cfg["preset"], stage_cfg["vae"], **kw)
+        return train.train_vae(out, data, stage_cfg["preset"], stage_cfg["vae"], **kw)
     if stage == "vae-decoder":
-        return train.train_vae_decoder(args.out, args.data, stage_cfg["preset"], stage_cfg["vae-decoder"], **kw)
+        return train.train_vae_decoder(out, data, stage_cfg["preset"], stage_cfg["vae-decoder"], **kw)
     if stage in train.FLOW_STAGES:
-        return train.train_flow(stage, args.out, args.data, stage_cfg[stage], **kw)
+        return train.train_flow(stage, out, data, stage_cfg[stage], **kw)
     if stage == "self-forcing":
-        return train.train_self_forcing(args.out, args.data, stage_cfg["self-forcing"], **kw)
+        return train.train_self_forcing(out, data, stage_cfg["self-forcing"], **kw)
     if stage == "refiner":
-        return train.train_refiner(args.out, args.data, stage_cfg["refiner"], **kw)
+        return train.train_refiner(out, data, stage_cfg["refiner"], **kw)
     raise ValueError(f"unknown stage {stage!r}")
 
 
@@ -154,6 +161,16 @@ def cmd_action_conditioning(args) -> int:
     return 0
 
 
+def cmd_sprint(args) -> int:
+    from training.sprint import SprintArgs, process_start_time, run_sprint
+
+    paths = (None if v is None else Path(v) for v in (args.data, args.config, args.work))
+    started = process_start_time() if args.whole_process else None  # the budget includes the imports
+    dest = run_sprint(SprintArgs(args.preset, Path(args.out), args.budget_min, args.init, *paths, started=started))
+    print(f"sprint: model written to {dest}; install it with `solaris-train install {dest}`")
+    return 0
+
+
 def cmd_install(args) -> int:
     from training.train import install_default
     dest = install_default(args.model, args.dest, tuple(args.files))
@@ -187,6 +204,22 @@ def build_parser() -> argparse.ArgumentParser:
                    help="wall-clock budget of the whole run (default: the config's all.time_budget_min; 0 = none): "
                         "the elastic stage (stage 3) stops early to keep within it")
     a.set_defaults(func=cmd_all, steps=None)
+    s = sub.add_parser("sprint", help="train a complete model within a wall-clock budget on whatever JAX sees, "
+                                      "recording engine data meanwhile (training/sprint.py, docs/training.md)")
+    s.add_argument("--preset", default="tiny",
+                   help="world-model preset (and its training/configs/sprint-<preset>.json)")
+    s.add_argument("--config", default=None,
+                   help="a sprint-config JSON instead of training/configs/sprint-<preset>.json")
+    s.add_argument("--out", required=True, help="output directory: OUT/model/ (shards, config.json, lineage.json)")
+    s.add_argument("--budget-min", type=float, required=True,
+                   help="wall-clock minutes from the process's start to the final model written")
+    s.add_argument("--init", default=None,
+                   help="'default' (the shipped model) or a model directory to continue; default: from scratch")
+    s.add_argument("--data", default=None, help="dataset root the engine records into and training reads "
+                                                "(default: WORK/data; episodes already there are used at once)")
+    s.add_argument("--work", default=None, help="stage runs, latent cache, rollouts (default: a temporary "
+                                                "directory, removed at the end)")
+    s.set_defaults(func=cmd_sprint)
     w = sub.add_parser("with-decoder", help="a model with the VAE decoder of a vae-decoder stage (same encoder)")
     w.add_argument("model", help="a model/ directory (e.g. self-forcing/model)")
     w.add_argument("--decoder-from", required=True, help="a vae-decoder/model sharing the model's encoder")
@@ -203,7 +236,8 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--out", required=True, help="the new model directory")
     g.set_defaults(func=cmd_action_conditioning)
     i = sub.add_parser("install", help="copy a trained model to the package's default-model directory")
-    i.add_argument("model", help="a model/ directory written by a stage")
+    i.add_argument("model", help="a model/ directory written by a stage or a sprint (OUT/model: shards and "
+                                 "lineage.json)")
     i.add_argument("--dest", default=None, help="default: solaris_env/assets/default")
     i.add_argument("--files", nargs="*", default=[], help="copied alongside (training log, eval.json, contact sheet)")
     i.set_defaults(func=cmd_install)
@@ -214,6 +248,7 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
     logging.getLogger("absl").setLevel(logging.WARNING)  # orbax logs every save step at INFO
     args = build_parser().parse_args(argv)
+    args.whole_process = argv is None  # this process runs just the command (a sprint's clock starts with it)
     if args.command not in ("install", "with-decoder", "action-conditioning"):
         from training.distributed import maybe_initialize_distributed
         maybe_initialize_distributed()  # multi-host when JAX_COORDINATOR_ADDRESS / JAX_NUM_PROCESSES are set

@@ -631,16 +631,22 @@ class MultiplayerSegmentSampler(_ResumableSampler):
         super().__init__(dataset, num_frames, seed, rank, num_ranks)
         self._windows: dict[int, _Window] = {}
         for episode_id in dataset.valid_ids:
-            if episode_id % num_ranks != rank:
-                continue
-            window = self._window(*dataset.render_times(episode_id))
-            if window is None:
-                self.skipped[TOO_SHORT] += 1
-                logger.warning("sampler: episode %d cannot hold a segment of %d frames", episode_id, num_frames)
-                continue
-            self._windows[episode_id] = window
-            self._candidates.append(episode_id)
+            self.add_episode(episode_id)
         self._check_candidates()
+
+    def add_episode(self, episode_id: int) -> bool:
+        """Make a valid episode of the dataset a candidate if it is this rank's and holds a segment
+        (``training.sprint`` adds the episodes a growing dataset found); returns whether it was added."""
+        if episode_id % self.num_ranks != self.rank:
+            return False
+        window = self._window(*self.dataset.render_times(episode_id))
+        if window is None:
+            self.skipped[TOO_SHORT] += 1
+            logger.warning("sampler: episode %d cannot hold a segment of %d frames", episode_id, self.num_frames)
+            return False
+        self._windows[episode_id] = window
+        self._candidates.append(episode_id)
+        return True
 
     def _window(self, times1_T: np.ndarray, times2_T: np.ndarray) -> _Window | None:
         start_time = max(times1_T[0], times2_T[0])
@@ -672,13 +678,18 @@ class SinglePlayerSegmentSampler(_ResumableSampler):
                  num_ranks: int = 1) -> None:
         super().__init__(dataset, num_frames, seed, rank, num_ranks)
         for episode_id in dataset.valid_ids:
-            if episode_id % num_ranks != rank:
-                continue
-            if dataset.episode(episode_id).length < num_frames + 1:
-                self.skipped[TOO_SHORT] += 1
-                continue
-            self._candidates.append(episode_id)
+            self.add_episode(episode_id)
         self._check_candidates()
+
+    def add_episode(self, episode_id: int) -> bool:
+        """As ``MultiplayerSegmentSampler.add_episode``."""
+        if episode_id % self.num_ranks != self.rank:
+            return False
+        if self.dataset.episode(episode_id).length < self.num_frames + 1:
+            self.skipped[TOO_SHORT] += 1
+            return False
+        self._candidates.append(episode_id)
+        return True
 
     def _draw(self, rng: np.random.Generator, episode_id: int) -> SegmentSP:
         length = self.dataset.episode(episode_id).length

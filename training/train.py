@@ -123,13 +123,15 @@ class LoopSpec:
 
 
 def run_loop(spec: LoopSpec, out: Path, state: Any, step_fn: Callable, draw_batch: Callable[[], Any],
-             sampler, resume: bool, on_sample: Callable[[Any, int], None] | None = None) -> Any:
+             sampler, resume: bool, on_sample: Callable[[Any, int], None] | None = None,
+             on_step: Callable[[Any, int], None] | None = None) -> Any:
     """Train ``state`` to ``spec.steps`` updates with checkpoints, metrics and samples; resumable.
 
     ``step_fn(state, batch) -> (state, metrics)`` donates ``state``; ``draw_batch()`` draws from ``sampler``
     (its ``state_dict`` is checkpointed with the train state). With ``spec.deadline``, the first step that ends
     past it is treated as the last one (logged, checkpointed, sampled) and the loop stops there; at least one
-    step runs. Returns the final state.
+    step runs. ``ckpt_every`` / ``sample_every`` <= 0: no checkpoints / samples at all (``training.sprint``,
+    which never resumes). ``on_step(state, step)`` runs after every step. Returns the final state.
     """
     from training.distributed import make_mesh, shard_batch, shard_train_state
 
@@ -164,10 +166,12 @@ def run_loop(spec: LoopSpec, out: Path, state: Any, step_fn: Callable, draw_batc
             losses = {k: f"{v:.4f}" for k, v in host.items() if k.endswith("loss")}
             bar.set_postfix(**losses, steps_s=f"{steps_per_s:.2f}")
         bar.update(1)
-        if done % spec.ckpt_every == 0 or last:
+        if spec.ckpt_every > 0 and (done % spec.ckpt_every == 0 or last):
             ckpt.save(done, state, {"sampler": sampler.state_dict(), "stage": spec.stage})
-        if on_sample is not None and (done % spec.sample_every == 0 or last):
+        if on_sample is not None and spec.sample_every > 0 and (done % spec.sample_every == 0 or last):
             on_sample(state, done)
+        if on_step is not None:
+            on_step(state, done)
         if last:
             break
     bar.close()
@@ -193,12 +197,24 @@ def _ranks() -> dict:
     return {"rank": jax.process_index(), "num_ranks": jax.process_count()}
 
 
-def duet_stream(data_dir: Path, cfg: WorldModelConfig, num_frames: int, seed: int, split: str = "train"):
+def duet_stream(data_dir: Path, cfg: WorldModelConfig, num_frames: int, seed: int, split: str = "train",
+                rescan_s: float | None = None):
+    """(dataset, sampler) of the Duet episodes; ``rescan_s`` (a stage-config key): the training split picks up
+    the episodes written meanwhile every ``rescan_s`` seconds (``training.sprint``)."""
+    if rescan_s and split == "train":
+        from training.sprint import growing_stream
+        return growing_stream(data_dir, cfg, num_frames, seed, rescan_s, single_player=False, **_ranks())
     dataset = D.DuetDataset(data_dir, split, obs_size=(cfg.frame_height, cfg.frame_width), frame_cache_mb=4096)
     return dataset, D.MultiplayerSegmentSampler(dataset, num_frames, seed=seed, **(_ranks() if split == "train" else {}))
 
 
-def vpt_stream(data_dir: Path, cfg: WorldModelConfig, num_frames: int, seed: int, split: str = "train"):
+def vpt_stream(data_dir: Path, cfg: WorldModelConfig, num_frames: int, seed: int, split: str = "train",
+               rescan_s: float | None = None):
+    """(dataset, sampler) of single-player episodes: the VPT-layout export; with ``rescan_s``, each bot's
+    view of the growing Duet episodes instead (``duet_stream``)."""
+    if rescan_s and split == "train":
+        from training.sprint import growing_stream
+        return growing_stream(data_dir, cfg, num_frames, seed, rescan_s, single_player=True, **_ranks())
     if not (Path(data_dir) / "vpt" / split / "episodes_info.json").is_file():
         from solaris_env.engine.vpt_export import export_vpt
         export_vpt(data_dir, data_dir)  # links the Duet videos; single-player actions per bot
@@ -212,8 +228,10 @@ def vpt_stream(data_dir: Path, cfg: WorldModelConfig, num_frames: int, seed: int
 
 
 def train_vae(out: str | Path, data_dir: str | Path, preset_name: str, stage_cfg: dict, seed: int = 0,
-              steps: int | None = None, resume: bool = True, fsdp: bool = False) -> Path:
-    """Train the preset's VAE on single-player clips of the Duet data; write ``out/vae/model``."""
+              steps: int | None = None, resume: bool = True, fsdp: bool = False,
+              deadline: float | None = None) -> Path:
+    """Train the preset's VAE on single-player clips of the Duet data; write ``out/vae/model``. ``deadline``
+    as ``train_flow``'s."""
     from training import vae as V
     from training.samples import write_json, write_png
 
@@ -241,7 +259,7 @@ def train_vae(out: str | Path, data_dir: str | Path, preset_name: str, stage_cfg
 
     spec = LoopSpec("vae", steps, sc["log_every"], sc["ckpt_every"], sc["sample_every"],
                     tokens_per_step=batch_size * cfg.num_players * sc["num_frames"] * cfg.frame_height
-                    * cfg.frame_width, lr=sc["lr"], fsdp=fsdp)
+                    * cfg.frame_width, lr=sc["lr"], fsdp=fsdp, deadline=deadline)
     state = run_loop(spec, out, state, step_fn, draw, sampler, resume, on_sample)
 
     stats_clips = [draw() for _ in range(max(1, sc["stats_clips"] // (batch_size * cfg.num_players)))]
@@ -258,7 +276,8 @@ def train_vae(out: str | Path, data_dir: str | Path, preset_name: str, stage_cfg
 
 
 def train_vae_decoder(out: str | Path, data_dir: str | Path, preset_name: str, stage_cfg: dict, seed: int = 0,
-                      steps: int | None = None, resume: bool = True, fsdp: bool = False) -> Path:
+                      steps: int | None = None, resume: bool = True, fsdp: bool = False,
+                      deadline: float | None = None) -> Path:
     """Fine-tune the decoder side of ``out/vae/model`` on long clips (``training.vae``: the encoder, the
     latent statistics and so every latent stay fixed); write ``out/vae-decoder/model``.
 
@@ -300,7 +319,7 @@ def train_vae_decoder(out: str | Path, data_dir: str | Path, preset_name: str, s
 
     spec = LoopSpec("vae-decoder", steps, sc["log_every"], sc["ckpt_every"], sc["sample_every"],
                     tokens_per_step=batch_size * cfg.num_players * sc["num_frames"] * cfg.frame_height
-                    * cfg.frame_width, lr=sc["lr"], fsdp=fsdp)
+                    * cfg.frame_width, lr=sc["lr"], fsdp=fsdp, deadline=deadline)
     state = run_loop(spec, out, state, step_fn, draw, sampler, resume, on_sample)
     after = test_psnr(state)
     WorldModel(cfg, dit, nnx.merge(graphdef, state.params, state.rest), encoder).save(model_dir(out, "vae-decoder"))
@@ -336,7 +355,7 @@ def relayout_decoder(vae, target: VAEConfig, seed: int):
 def single_player_clips(data_dir: Path, cfg: WorldModelConfig, sc: dict, seed: int):
     """(sampler, draw, local batch size) of the VAE stages: ``draw()`` gives B segments x P players as
     B*P single-player clips (B*P, T, H, W, 3) uint8."""
-    dataset, sampler = duet_stream(data_dir, cfg, sc["num_frames"], seed)
+    dataset, sampler = duet_stream(data_dir, cfg, sc["num_frames"], seed, rescan_s=sc.get("rescan_s"))
     batch_size = local_batch_size(sc["batch_size"])
 
     def draw():
@@ -385,7 +404,8 @@ def clip_stream(out: Path, data_dir: Path, cfg: WorldModelConfig, vae, encoder, 
     stage's VAE lives in ``out/latents`` and is built (once) before training."""
     from training.latents import latent_clips, make_prepare_latents
 
-    dataset, sampler = (vpt_stream if single_player else duet_stream)(data_dir, cfg, sc["num_frames"], seed)
+    dataset, sampler = (vpt_stream if single_player else duet_stream)(data_dir, cfg, sc["num_frames"], seed,
+                                                                      rescan_s=sc.get("rescan_s"))
     clips = latent_clips(dataset, cfg, vae, Path(out) / "latents", canonical_dir=Path(data_dir) / "duet")
     t0 = time.perf_counter()
     n = clips.build()
@@ -395,9 +415,10 @@ def clip_stream(out: Path, data_dir: Path, cfg: WorldModelConfig, vae, encoder, 
 
 def train_flow(stage: str, out: str | Path, data_dir: str | Path, stage_cfg: dict, seed: int = 0,
                steps: int | None = None, resume: bool = True, fsdp: bool = False,
-               deadline: float | None = None) -> Path:
+               deadline: float | None = None, on_model: Callable | None = None) -> Path:
     """Stages 1-3: flow matching of the DiT with the stage's entry point and noise type; ``deadline``
-    (epoch seconds, ``training.budget``) may end the stage before ``steps``."""
+    (epoch seconds, ``training.budget``) may end the stage before ``steps``; ``on_model(step, make_model)``
+    runs after every step, ``make_model()`` giving the current ``WorldModel`` (``training.sprint``)."""
     if stage not in FLOW_STAGES:
         raise ValueError(f"stage must be one of {sorted(FLOW_STAGES)}, got {stage!r}")
     fs = FLOW_STAGES[stage]
@@ -436,10 +457,20 @@ def train_flow(stage: str, out: str | Path, data_dir: str | Path, stage_cfg: dic
     spec = LoopSpec(stage, steps, sc["log_every"], sc["ckpt_every"], sc["sample_every"],
                     tokens_per_step=batch_size * cfg.num_players * frames * cfg.tokens_per_frame, lr=sc["lr"],
                     fsdp=fsdp, lr_decay_steps=decay_steps, deadline=deadline)
-    state = run_loop(spec, out, state, train_step, draw, sampler, resume, on_sample)
-    trained = nnx.merge(graphdef, state.final_params, state.rest)
-    WorldModel(cfg, trained, vae, encoder).save(model_dir(out, stage))
+
+    def current(st) -> WorldModel:
+        return WorldModel(cfg, nnx.merge(graphdef, st.final_params, st.rest), vae, encoder)
+
+    state = run_loop(spec, out, state, train_step, draw, sampler, resume, on_sample, _model_hook(on_model, current))
+    current(state).save(model_dir(out, stage))
     return model_dir(out, stage)
+
+
+def _model_hook(on_model: Callable | None, current: Callable[[Any], WorldModel]) -> Callable | None:
+    """``run_loop``'s ``on_step`` from a stage's ``on_model(step, make_model)`` and its state -> model."""
+    if on_model is None:
+        return None
+    return lambda st, step: on_model(step, lambda: current(st))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -448,10 +479,12 @@ def train_flow(stage: str, out: str | Path, data_dir: str | Path, stage_cfg: dic
 
 
 def train_self_forcing(out: str | Path, data_dir: str | Path, stage_cfg: dict, seed: int = 0,
-                       steps: int | None = None, resume: bool = True, fsdp: bool = False) -> Path:
+                       steps: int | None = None, resume: bool = True, fsdp: bool = False,
+                       deadline: float | None = None, on_model: Callable | None = None) -> Path:
     """Stage 4: generator from mp-causal, critic and frozen teacher from mp-bidirectional (model-spec
     §6.3); ``steps`` counts iterations (a critic update each, a generator update every 5th). The
-    generator mode is ``stage_cfg["generator"]``: "checkpointed" (default) or "naive"."""
+    generator mode is ``stage_cfg["generator"]``: "checkpointed" (default) or "naive". ``deadline`` and
+    ``on_model`` as ``train_flow``'s."""
     from training import self_forcing as SF
 
     out, data_dir = Path(out), Path(data_dir)
@@ -486,10 +519,13 @@ def train_self_forcing(out: str | Path, data_dir: str | Path, stage_cfg: dict, s
     frames = cfg.vae.latent_frames(sc["num_frames"])
     spec = LoopSpec("self-forcing", steps, sc["log_every"], sc["ckpt_every"], sc["sample_every"],
                     tokens_per_step=batch_size * cfg.num_players * frames * cfg.tokens_per_frame,
-                    lr=sf_cfg.generator_lr, fsdp=fsdp)
-    state = run_loop(spec, out, state, iteration, draw, sampler, resume, on_sample)
-    trained = nnx.merge(graphs.generator, state.generator.params, state.generator.rest)
-    WorldModel(cfg, trained, vae, encoder).save(model_dir(out, "self-forcing"))
+                    lr=sf_cfg.generator_lr, fsdp=fsdp, deadline=deadline)
+
+    def current(st) -> WorldModel:
+        return WorldModel(cfg, nnx.merge(graphs.generator, st.generator.params, st.generator.rest), vae, encoder)
+
+    state = run_loop(spec, out, state, iteration, draw, sampler, resume, on_sample, _model_hook(on_model, current))
+    current(state).save(model_dir(out, "self-forcing"))
     return model_dir(out, "self-forcing")
 
 
@@ -499,9 +535,11 @@ def train_self_forcing(out: str | Path, data_dir: str | Path, stage_cfg: dict, s
 
 
 def train_refiner(out: str | Path, data_dir: str | Path, stage_cfg: dict, seed: int = 0,
-                  steps: int | None = None, resume: bool = True, fsdp: bool = False) -> Path:
+                  steps: int | None = None, resume: bool = True, fsdp: bool = False,
+                  deadline: float | None = None, on_model: Callable | None = None) -> Path:
     """The refiner of ``OUT/<init_from>/model`` (default self-forcing), trained on that model's rollouts of
-    the training episodes (``training.refine``); the model with it -> ``OUT/refiner/model``."""
+    the training episodes (``training.refine``); the model with it -> ``OUT/refiner/model``. ``deadline`` and
+    ``on_model`` as ``train_flow``'s."""
     from solaris_env.world_model.config import RefinerConfig
     from training import refine as R
 
@@ -529,12 +567,16 @@ def train_refiner(out: str | Path, data_dir: str | Path, stage_cfg: dict, seed: 
 
     n, t, h, w, _ = data["obs"].shape
     spec = LoopSpec("refiner", steps, sc["log_every"], sc["ckpt_every"], sc.get("sample_every", steps),
-                    tokens_per_step=sc["batch_size"] * t * h * w, lr=sc["lr"], fsdp=fsdp)
-    state = run_loop(spec, out, state, R.make_refiner_step(graphdef, tx, sc.get("loss", "mse")), draw, sampler,
-                     resume)
+                    tokens_per_step=sc["batch_size"] * t * h * w, lr=sc["lr"], fsdp=fsdp, deadline=deadline)
     dit, vae, encoder = model.modules()
-    vae.refiner = nnx.merge(graphdef, state.params, state.rest)
-    WorldModel(model.config, dit, vae, encoder).save(model_dir(out, "refiner"))
+
+    def current(st) -> WorldModel:
+        vae.refiner = nnx.merge(graphdef, st.params, st.rest)
+        return WorldModel(model.config, dit, vae, encoder)
+
+    state = run_loop(spec, out, state, R.make_refiner_step(graphdef, tx, sc.get("loss", "mse")), draw, sampler,
+                     resume, on_step=_model_hook(on_model, current))
+    current(state).save(model_dir(out, "refiner"))
     return model_dir(out, "refiner")
 
 
@@ -615,8 +657,9 @@ DEFAULT_MODEL_DIR = Path(__file__).resolve().parent.parent / "solaris_env" / "as
 
 
 def install_default(model: str | Path, dest: str | Path | None = None, extra_files: tuple = ()) -> Path:
-    """Copy a stage's ``model/`` (weights + config) and ``extra_files`` (training log, eval summary) to
-    the package's default-model directory, atomically (the env loads it when no checkpoint is named)."""
+    """Copy a stage's ``model/`` (weights, either layout, + config; a ``lineage.json`` beside them comes along)
+    and ``extra_files`` (training log, eval summary) to the package's default-model directory, atomically
+    (the env loads it when no checkpoint is named)."""
     import shutil
     import tempfile
 
@@ -624,6 +667,8 @@ def install_default(model: str | Path, dest: str | Path | None = None, extra_fil
 
     model, dest = Path(model), Path(dest) if dest else DEFAULT_MODEL_DIR
     loaded = WorldModel.load(model)  # refuse to install anything that does not load
+    if (model / "lineage.json").is_file():
+        extra_files = (model / "lineage.json", *extra_files)
     dest.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{dest.name}.tmp-", dir=dest.parent))
     try:  # shipped in float16 storage (half the size; loads back as float32)

@@ -6,7 +6,11 @@ Ours: a directory with
   ``WorldModelConfig`` as nested dicts (tuples as lists);
 - ``weights.safetensors``: every parameter of the three networks under its flattened NNX state path,
   prefixed by the component: ``dit/blocks/self_attn/q/kernel``, ``vae/encoder/conv_in/kernel``,
-  ``image_encoder/blocks/0/fc1/kernel`` (list indices are path components).
+  ``image_encoder/blocks/0/fc1/kernel`` (list indices are path components);
+- or, saved with ``shard_bytes``, the same tensors split over ``weights-00001-of-0000N.safetensors`` ..
+  ``weights-0000N-of-0000N.safetensors``, each file at most ``shard_bytes`` (whole tensors, packed in key
+  order; for transports that cap the file size). ``load`` reads either layout; a directory holding both,
+  or an incomplete shard set, is an error.
 
 It is written into a temporary directory next to the target and moved into place with ``os.replace``
 (an existing checkpoint is first moved aside and deleted only after the new one is in place), so a
@@ -31,6 +35,7 @@ import dataclasses
 import json
 import os
 import pathlib
+import re
 import shutil
 import tempfile
 import typing
@@ -48,6 +53,8 @@ FORMAT = "solaris_env.world_model"
 VERSION = 1
 CONFIG_FILE = "config.json"
 WEIGHTS_FILE = "weights.safetensors"
+SHARD_FILE = "weights-{index:05d}-of-{count:05d}.safetensors"
+SHARD_RE = re.compile(r"weights-(\d{5})-of-(\d{5})\.safetensors")
 OFFICIAL_FILES = {"dit": "solaris.pt", "vae": "vae.pt", "image_encoder": "clip.pt"}
 
 # ---------------------------------------------------------------------------------------------
@@ -127,12 +134,17 @@ def _merge(graphdef, abstract_state, values: dict[str, jax.Array]):
 STORAGE_DTYPES = (None, "float16")
 
 
-def save(path, config: WorldModelConfig, params: dict, storage_dtype: str | None = None) -> pathlib.Path:
+def save(path, config: WorldModelConfig, params: dict, storage_dtype: str | None = None,
+         shard_bytes: int | None = None, max_total_bytes: int | None = None,
+         extra_files: dict[str, str] | None = None) -> pathlib.Path:
     """Write ``params`` ({component: NNX state}) and ``config`` to directory ``path`` atomically.
 
     ``storage_dtype="float16"`` stores float32 parameters in half precision (half the size, e.g. for the
     shipped model); ``load`` casts them back to the model's dtypes. Values outside the float16 range are
-    an error, never silently clipped."""
+    an error, never silently clipped. ``shard_bytes`` splits the weights into shard files of at most that
+    many bytes (module docstring); ``max_total_bytes`` refuses (ValueError, nothing replaced) weights
+    larger than that in all; ``extra_files`` ({name: text}) are written into the same directory, atomically
+    with the weights (e.g. a lineage record)."""
     from safetensors.numpy import save_file
 
     if storage_dtype not in STORAGE_DTYPES:
@@ -147,13 +159,28 @@ def save(path, config: WorldModelConfig, params: dict, storage_dtype: str | None
                 if np.abs(value).max(initial=0.0) > np.finfo(np.float16).max:
                     raise ValueError(f"{key}: values exceed the float16 range; save with storage_dtype=None")
                 tensors[key] = value.astype(np.float16)
+    file_meta = {"format": FORMAT, "version": str(VERSION)}
+    files = {WEIGHTS_FILE: tensors} if shard_bytes is None else _shards(tensors, shard_bytes, file_meta)
     meta = {"format": FORMAT, "version": VERSION, "components": sorted(params), "config": config_to_dict(config),
             "storage_dtype": storage_dtype}
+    extra_files = dict(extra_files or {})
+    clash = sorted(set(extra_files) & (set(files) | {CONFIG_FILE}))
+    if clash:
+        raise ValueError(f"extra_files {clash} would overwrite the checkpoint's own files")
     tmp = pathlib.Path(tempfile.mkdtemp(prefix=f".{path.name}.tmp-", dir=path.parent))
     try:
-        save_file(tensors, str(tmp / WEIGHTS_FILE), metadata={"format": FORMAT, "version": str(VERSION)})
+        for name, part in files.items():
+            save_file(part, str(tmp / name), metadata=file_meta)
+        total = sum((tmp / name).stat().st_size for name in files)
+        if max_total_bytes is not None and total > max_total_bytes:
+            raise ValueError(f"{path}: the weights take {total} bytes, more than max_total_bytes={max_total_bytes}")
+        too_big = [name for name in files if shard_bytes is not None and (tmp / name).stat().st_size > shard_bytes]
+        if too_big:  # _shards leaves room for the header: a bug, never a silently oversized file
+            raise AssertionError(f"{path}: shards {too_big} exceed shard_bytes={shard_bytes}")
         (tmp / CONFIG_FILE).write_text(json.dumps(meta, indent=1))
-        for name in (WEIGHTS_FILE, CONFIG_FILE):
+        for name, text in extra_files.items():
+            (tmp / name).write_text(text)
+        for name in (*files, CONFIG_FILE, *extra_files):
             with open(tmp / name, "rb") as f:
                 os.fsync(f.fileno())
         if path.exists():
@@ -167,6 +194,58 @@ def save(path, config: WorldModelConfig, params: dict, storage_dtype: str | None
         if tmp.exists():
             shutil.rmtree(tmp)
     return path
+
+
+def _header_bound(tensors: dict[str, np.ndarray], metadata: dict, shard_bytes: int) -> int:
+    """An upper bound on a safetensors file's header (its 8-byte length, the JSON, its alignment padding):
+    the JSON written with spaces and the widest dtype name and offsets."""
+    header = {"__metadata__": metadata, **{key: {"dtype": "BF16", "shape": list(v.shape),
+                                                 "data_offsets": [shard_bytes, shard_bytes]}
+                                           for key, v in tensors.items()}}
+    return 8 + len(json.dumps(header)) + 8
+
+
+def _shards(tensors: dict[str, np.ndarray], shard_bytes: int, metadata: dict) -> dict[str, dict]:
+    """{shard file name: tensors}: whole tensors packed in key order into files of at most ``shard_bytes``."""
+    if not (isinstance(shard_bytes, int) and shard_bytes > 0):
+        raise ValueError(f"shard_bytes must be a positive int, got {shard_bytes!r}")
+    parts: list[dict[str, np.ndarray]] = [{}]
+    for key in sorted(tensors):
+        value = tensors[key]
+        alone = {key: value}
+        if value.nbytes + _header_bound(alone, metadata, shard_bytes) > shard_bytes:
+            raise ValueError(f"tensor {key} ({value.nbytes} bytes) does not fit in a shard of "
+                             f"shard_bytes={shard_bytes}")
+        grown = {**parts[-1], key: value}
+        if sum(v.nbytes for v in grown.values()) + _header_bound(grown, metadata, shard_bytes) > shard_bytes:
+            parts.append(alone)
+        else:
+            parts[-1] = grown
+    count = len(parts)
+    return {SHARD_FILE.format(index=i + 1, count=count): part for i, part in enumerate(parts)}
+
+
+def weight_files(path) -> list[pathlib.Path]:
+    """The weight files of our checkpoint directory: ``weights.safetensors``, or every shard of one complete
+    ``weights-XXXXX-of-NNNNN.safetensors`` set (ValueError naming what is missing or inconsistent)."""
+    path = pathlib.Path(path)
+    shards = sorted(p for p in path.glob("weights-*-of-*.safetensors") if SHARD_RE.fullmatch(p.name))
+    if (path / WEIGHTS_FILE).is_file():
+        if shards:
+            raise ValueError(f"{path} holds both {WEIGHTS_FILE} and shards {[p.name for p in shards]}; "
+                             "expected one layout")
+        return [path / WEIGHTS_FILE]
+    if not shards:
+        raise ValueError(f"{path} has neither {WEIGHTS_FILE} nor weight shards weights-XXXXX-of-NNNNN.safetensors")
+    counts = {int(SHARD_RE.fullmatch(p.name).group(2)) for p in shards}
+    if len(counts) != 1:
+        raise ValueError(f"{path}: shards of different sets {[p.name for p in shards]}; expected one -of-N count")
+    (count,) = counts
+    expected = [path / SHARD_FILE.format(index=i, count=count) for i in range(1, count + 1)]
+    if shards != expected:
+        missing = sorted(p.name for p in set(expected) - set(shards))
+        raise ValueError(f"{path}: incomplete weight shards, missing {missing} (found {[p.name for p in shards]})")
+    return shards
 
 
 def read_config(path) -> WorldModelConfig:
@@ -184,7 +263,13 @@ def load(path) -> tuple[WorldModelConfig, tuple]:
 
     path = pathlib.Path(path)
     config = read_config(path)
-    tensors = load_file(str(path / WEIGHTS_FILE))
+    tensors = {}
+    for file in weight_files(path):
+        part = load_file(str(file))
+        repeated = sorted(set(part) & set(tensors))
+        if repeated:
+            raise ValueError(f"{file}: tensors {repeated} are also in an earlier shard")
+        tensors.update(part)
     abstract = _abstract(config)
     expected = {f"{name}/{key}": _spec(v) for name, (_, state) in abstract.items()
                 for key, v in flat_params(state).items()}
@@ -269,5 +354,5 @@ def load_modules(path, config: WorldModelConfig | None = None) -> tuple[WorldMod
         return load(path)
     if is_official(path):
         return load_official(path, config)
-    raise ValueError(f"{path} is neither our checkpoint ({CONFIG_FILE} + {WEIGHTS_FILE}) nor an official "
-                     f"directory with {sorted(OFFICIAL_FILES.values())}")
+    raise ValueError(f"{path} is neither our checkpoint ({CONFIG_FILE} + {WEIGHTS_FILE} or its shards) nor an "
+                     f"official directory with {sorted(OFFICIAL_FILES.values())}")

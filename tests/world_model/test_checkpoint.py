@@ -1,4 +1,4 @@
-"""Checkpoints (model-spec §9): our safetensors + JSON format, and the official orbax directories
+"""Checkpoints (docs/model.md §9): our safetensors + JSON format, and the official orbax directories
 (``solaris.pt`` / ``vae.pt`` / ``clip.pt``) written here in the official trees and dtypes at reduced sizes
 (the ``test`` preset with the layout switches the reference always has)."""
 

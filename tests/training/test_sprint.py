@@ -1,0 +1,227 @@
+"""``solaris-train sprint`` on the CPU with the ``test`` preset: two ~1-minute sprints, the second continuing the
+first, each training while the engine records episodes; plus the sharded checkpoint writer and the planner."""
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from solaris_env.world_model import checkpoint
+from training import cli
+from training.sprint import LINEAGE_FILE, SprintConfig, plan_shares, stage_blocks
+
+MIB = 2**20
+
+
+@pytest.fixture(scope="module")
+def test_model():
+    from solaris_env.world_model.world_model import WorldModel
+
+    return WorldModel.from_preset("test", seed=0)
+
+
+def _params(model) -> dict:
+    from solaris_env.world_model.world_model import COMPONENTS
+
+    return dict(zip(COMPONENTS, model.params))
+
+
+def test_sharded_save_round_trips_bit_exact_and_keeps_every_shard_under_the_cap(test_model, tmp_path):
+    from solaris_env.world_model.world_model import WorldModel
+
+    cap = 256 * 1024
+    path = checkpoint.save(tmp_path / "model", test_model.config, _params(test_model), shard_bytes=cap,
+                           extra_files={"lineage.json": "{}"})
+    shards = checkpoint.weight_files(path)
+    assert len(shards) > 3 and not (path / checkpoint.WEIGHTS_FILE).exists()
+    assert [p.name for p in shards] == [f"weights-{i:05d}-of-{len(shards):05d}.safetensors"
+                                        for i in range(1, len(shards) + 1)]
+    assert all(p.stat().st_size <= cap for p in shards)
+    assert (path / "lineage.json").read_text() == "{}"
+    loaded = WorldModel.load(path)
+    for a, b in zip(_leaves(test_model), _leaves(loaded)):
+        np.testing.assert_array_equal(a, b)
+    single = checkpoint.save(tmp_path / "single", test_model.config, _params(test_model))
+    assert [p.name for p in checkpoint.weight_files(single)] == [checkpoint.WEIGHTS_FILE]
+
+
+def _leaves(model):
+    import jax
+
+    return [np.asarray(x) for x in jax.tree.leaves(model.params)]
+
+
+def test_shard_writer_refuses_what_does_not_fit_and_loader_refuses_incomplete_sets(test_model, tmp_path):
+    with pytest.raises(ValueError, match="does not fit in a shard"):
+        checkpoint.save(tmp_path / "a", test_model.config, _params(test_model), shard_bytes=1024)
+    with pytest.raises(ValueError, match="max_total_bytes"):
+        checkpoint.save(tmp_path / "b", test_model.config, _params(test_model), shard_bytes=MIB, max_total_bytes=MIB)
+    assert not (tmp_path / "b").exists()
+    path = checkpoint.save(tmp_path / "c", test_model.config, _params(test_model), shard_bytes=256 * 1024)
+    checkpoint.weight_files(path)[1].unlink()
+    with pytest.raises(ValueError, match="incomplete weight shards, missing"):
+        checkpoint.load(path)
+    with pytest.raises(ValueError, match="extra_files"):
+        checkpoint.save(tmp_path / "d", test_model.config, _params(test_model), extra_files={"config.json": "{}"})
+
+
+def test_the_default_model_fits_the_transport_as_float16_shards(tmp_path):
+    """The shipped tiny model: 16 MiB shards, 64 MiB in all, as the GPU sprint exports it."""
+    from solaris_env.world_model.world_model import WorldModel
+    from training.train import DEFAULT_MODEL_DIR
+
+    model = WorldModel.load(DEFAULT_MODEL_DIR)
+    path = checkpoint.save(tmp_path / "model", model.config, _params(model), storage_dtype="float16",
+                           shard_bytes=16 * MIB, max_total_bytes=64 * MIB)
+    shards = checkpoint.weight_files(path)
+    assert len(shards) >= 3 and all(p.stat().st_size <= 16 * MIB for p in shards)
+
+
+def test_plan_drops_the_smallest_shares_first_and_splits_the_rest_by_fraction():
+    overhead = {"a": 10.0, "b": 20.0, "c": 30.0}
+    shares, dropped = plan_shares([("a", 0.5), ("b", 0.2), ("c", 0.3)], overhead, 5.0, 160.0)
+    assert dropped == [] and shares == pytest.approx({"a": 10 + 50, "b": 20 + 20, "c": 30 + 30})
+    shares, dropped = plan_shares([("a", 0.5), ("b", 0.2), ("c", 0.3)], overhead, 5.0, 60.0)
+    assert dropped == ["b"] and shares == pytest.approx({"a": 10 + 12.5, "c": 30 + 7.5})
+    assert plan_shares([("a", 1.0)], overhead, 5.0, 14.0) == ({}, ["a"])
+
+
+def test_config_errors_name_the_field():
+    data = json.loads((cli.Path(__file__).resolve().parents[2] / "training/configs/sprint-tiny.json").read_text())
+    cfg = SprintConfig.from_dict(data)
+    assert stage_blocks(cfg, cfg.device("gpu"))["mp-causal"]["steps"] >= 10**9
+    with pytest.raises(ValueError, match="fractions_from_init must not name"):
+        SprintConfig.from_dict({**data, "fractions_from_init": {"vae": 1.0}})
+    with pytest.raises(ValueError, match=r"devices.gpu.reserve_s must be a number >= 0"):
+        SprintConfig.from_dict({**data, "devices": {"gpu": {**data["devices"]["gpu"], "reserve_s": -1}}})
+    bad = {**data["devices"]["cpu"], "stages": {"mp-causal": {"batch": 4}}}
+    with pytest.raises(ValueError, match=r"override mp-causal: unknown keys \['batch'\]"):
+        stage_blocks(SprintConfig.from_dict({**data, "devices": {"cpu": bad}}), SprintConfig.from_dict(
+            {**data, "devices": {"cpu": bad}}).device("cpu"))
+    with pytest.raises(ValueError, match="no devices.tpu block"):
+        cfg.device("tpu")
+
+
+def test_growing_stream_picks_up_the_episodes_written_meanwhile(tiny_duet, tmp_path):
+    """What every sprint stage reads: an episode joins at the first draw ``rescan_s`` after its commit markers
+    (the ``_episode_info.json`` files the recorder moves in last) are there, not before; each bot's view of it
+    joins the single-player stream."""
+    import time
+
+    from solaris_env.world_model.config import preset
+    from training import sprint
+
+    src, dst = tiny_duet / "duet" / "train", tmp_path / "duet" / "train"
+    dst.mkdir(parents=True)
+    alphas = sorted(src.glob("*_Alpha_*.mp4"))
+
+    def move_in(alpha, commit: bool):
+        stems = [alpha.name.removesuffix(".mp4"), alpha.name.removesuffix(".mp4").replace("_Alpha_", "_Bravo_")]
+        names = [f"{x}{suffix}" for suffix in (".mp4", ".json") for x in stems]
+        for name in names if not commit else [f"{x}_episode_info.json" for x in stems]:
+            shutil.copy2(src / name, dst / name)
+
+    for alpha in alphas[:2]:
+        move_in(alpha, commit=False)
+        move_in(alpha, commit=True)
+    move_in(alphas[2], commit=False)
+    n_streams = len(sprint.STREAMS)
+    cfg = preset("test")
+    dataset, sampler = sprint.growing_stream(tmp_path, cfg, 9, seed=0, rescan_s=0.05, single_player=False)
+    players, player_sampler = sprint.growing_stream(tmp_path, cfg, 9, seed=0, rescan_s=0.05, single_player=True)
+    assert dataset.valid_ids == [0, 1] and sampler.state_dict()["num_candidates"] == 2
+    time.sleep(0.1)
+    sampler.next()
+    assert dataset.valid_ids == [0, 1]  # moved in, not committed yet
+    move_in(alphas[2], commit=True)
+    time.sleep(0.1)
+    sampler.next()
+    player_sampler.next()
+    assert dataset.valid_ids == [0, 1, 2] and sampler.state_dict()["num_candidates"] == 3
+    assert [h[1] for h in dataset.history] == [2, 3]
+    assert players.valid_ids == list(range(6)) and player_sampler.state_dict()["num_candidates"] == 6
+    np.testing.assert_array_equal(players.episode(5).act_T25, dataset.recordings(2)[1].act_T25)
+    assert players.episode(4).video == dataset.recordings(2)[0].video
+    del sprint.STREAMS[n_streams:]
+
+
+@pytest.fixture(scope="module")
+def sprints(tiny_duet, test_model, tmp_path_factory):
+    """Sprint A (1 min; on this CPU its cold JIT compile alone may take longer) from a random-init model, then
+    sprint B (0.5 min) from A's output; one data directory, seeded with the 3 + 1 recorded episodes so training
+    starts at once, and one work directory (its JAX compilation cache and latent cache serve B and B's engine
+    worker)."""
+    root = tmp_path_factory.mktemp("sprint")
+    data = root / "data"
+    shutil.copytree(tiny_duet / "duet", data / "duet")
+    # stored as the sprints store theirs: B's VAE is A's, bit for bit, so B finds A's latents cached
+    checkpoint.save(root / "init", test_model.config, _params(test_model), storage_dtype="float16")
+    common = ["sprint", "--preset", "test", "--data", str(data), "--work", str(root / "work")]
+    for name, init, minutes in (("a", root / "init", "1"), ("b", root / "a" / "model", "0.5")):
+        assert cli.main([*common, "--init", str(init), "--out", str(root / name), "--budget-min", minutes]) == 0
+    return root
+
+
+@pytest.mark.slow
+def test_sprint_writes_a_sharded_model_that_steps_in_the_dream_env(sprints):
+    from solaris_env.dream_env import DreamParallelEnv, build_model
+
+    model_dir = sprints / "a" / "model"
+    names = sorted(p.name for p in model_dir.iterdir())
+    assert "config.json" in names and LINEAGE_FILE in names and checkpoint.WEIGHTS_FILE not in names
+    shards = checkpoint.weight_files(model_dir)
+    assert len(shards) >= 2 and all(p.stat().st_size <= MIB // 4 for p in shards)  # sprint-test.json: 0.25 MiB
+    env = DreamParallelEnv(model=build_model(model_dir))
+    obs, _ = env.reset(seed=0)
+    obs, *_ = env.step({a: env.action_space(a).sample() for a in env.agents})
+    assert set(obs) == {"Alpha", "Bravo"} and all(env.observation_space(a).contains(obs[a]) for a in obs)
+
+
+def _lineages(sprints) -> tuple[dict, dict]:
+    return tuple(json.loads((sprints / name / "model" / LINEAGE_FILE).read_text()) for name in ("a", "b"))
+
+
+@pytest.mark.slow
+def test_sprint_trains_while_the_engine_records_and_keeps_its_time(sprints):
+    a, b = _lineages(sprints)
+    for lineage in (a, b):
+        (stage,) = [s for s in lineage["stages"] if s["status"] == "ran"]  # sprint-test.json: mp-causal only
+        assert stage["stage"] == "mp-causal" and stage["steps"] >= 1 and stage["share_s"] > 0
+        # within the budget (the final export follows within reserve_s), unless this machine took longer than the
+        # stage's whole share to set up and take its first step (the cold JIT compile): then that step was its last
+        overran_on_first_step = stage["steps"] == 1 and stage["first_step_s"] >= stage["share_s"]
+        assert lineage["training_wall_s"] <= lineage["budget_s"] or overran_on_first_step, stage
+        assert lineage["exports"][-1]["final"] and not any(e["final"] for e in lineage["exports"][:-1])
+    assert len(a["exports"]) >= 2  # a periodic export (every 0.2 min) from the live train state, then the final
+    assert a["platform"] == "cpu" and a["generation"] == 1 and a["init"]["lineage"] is None
+    (a_stage,), (b_stage,) = ([s["data"] for s in x["stages"] if s["status"] == "ran"] for x in (a, b))
+    assert a_stage["episodes_at_start"] >= 3  # the seeded ones: training started without waiting
+    # A's engine worker recorded while A trained: A's stage picked episodes up (a rescan after its first step)
+    # or B started with more than A did
+    grew = [d["episodes_at_end"] - d["episodes_at_start"] for d in (a_stage, b_stage)]
+    assert max(grew) > 0 or b_stage["episodes_at_start"] > a_stage["episodes_at_start"], (a_stage, b_stage)
+    assert a["collected"]["train"] >= 1
+
+
+@pytest.mark.slow
+def test_a_sprint_from_a_sprint_continues_its_lineage(sprints):
+    a, b = _lineages(sprints)
+    assert b["generation"] == 2 and b["init"]["model"] == str(sprints / "a" / "model")
+    assert b["init"]["lineage"] == a
+    assert b["collect"]["seed"] == a["collect"]["seed"] + 1000  # new episodes for the continued model
+    assert [s["stage"] for s in b["stages"] if s["status"] == "ran"] == ["mp-causal"]
+
+
+def test_install_takes_a_sharded_sprint_model_with_its_lineage(test_model, tmp_path):
+    from solaris_env.world_model.world_model import WorldModel
+
+    src = checkpoint.save(tmp_path / "sprint" / "model", test_model.config, _params(test_model),
+                          storage_dtype="float16", shard_bytes=256 * 1024,
+                          extra_files={LINEAGE_FILE: '{"generation": 1}'})
+    assert cli.main(["install", str(src), "--dest", str(tmp_path / "default")]) == 0
+    installed = tmp_path / "default"
+    assert sorted(p.name for p in installed.iterdir()) == ["config.json", LINEAGE_FILE, checkpoint.WEIGHTS_FILE]
+    assert json.loads((installed / LINEAGE_FILE).read_text()) == {"generation": 1}
+    for a, b in zip(_leaves(WorldModel.load(src)), _leaves(WorldModel.load(installed))):
+        np.testing.assert_array_equal(a, b)

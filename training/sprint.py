@@ -1,0 +1,793 @@
+"""``solaris-train sprint``: a complete world model trained within a wall-clock budget, data made meanwhile.
+
+    solaris-train sprint --preset tiny --out OUT --budget-min 8.5 [--init default|PATH] [--data DIR] [--config JSON]
+
+One command for a borrowed accelerator (docs/training.md, "GPU sprint"): whatever ``jax.devices()`` holds
+(a GPU there, the CPU here) trains while the engine records episodes on the CPU cores.
+
+* **Data while training.** ``Collector`` runs the engine's ``collect`` jobs (``solaris_env.engine.cli``; the
+  config's ``collect`` block as ``training.cli.collect_argv`` reads it: >= 10 instances with ``world: mixed``
+  give all five flat surfaces and the normal worlds; the seed moves on by 1000 per sprint generation, so a
+  continued model sees new episodes) in a ``spawn`` pool of background processes (CPU-only JAX, lower
+  priority) writing the usual Duet layout, ``test_fraction`` of the episodes held out in ``duet/test``
+  (when a VAE stage will run, a held-out episode is recorded first: they evaluate on it). Training starts once
+  ``min_train_episodes`` exist (episodes already in ``--data`` count). Every stage reads the training
+  split through ``growing_stream`` (``train.duet_stream`` / ``vpt_stream`` with the stage-config key
+  ``rescan_s``): every ``rescan_s`` seconds the episodes completed since (at most ``RESCAN_MAX_NEW`` at a
+  time) join the sampler; the single-player stage reads each bot's view of the Duet episodes
+  (``DuetPlayers``) instead of a VPT export. The draws depend on when episodes arrive: a sprint is neither
+  resumable nor bit-for-bit repeatable, unlike ``solaris-train all``.
+* **Stages and time.** From scratch: the VAE, the VAE decoder, stages 1-3, Self Forcing and the refiner
+  (``training.train``'s functions, ``training.cli.call_stage``) with the config's ``fractions``; from a
+  model (``--init``, which has its VAE): the DiT stages with ``fractions_from_init``. A stage is
+  open-ended and stops at its deadline (``LoopSpec.deadline``). When a stage is about to start, the time
+  left (the budget's end - now - ``reserve_s``, kept for the final export) is planned over it and the
+  stages after it (``plan_shares``): each costs its ``overhead_s`` (loading, JIT compiles, the latent
+  cache, the refiner's rollouts, the VAE's statistics, the save; per device kind) plus a share of the rest
+  by fraction; while the overheads and ``min_train_s`` each do not fit, the stage with the smallest
+  fraction is dropped. Once stages have run, the overheads are scaled by how those compared with theirs
+  (the mean of time-to-first-step / ``overhead_s``, within 0.5-4), so the plan adapts to the machine. A
+  stage that overruns its share is paid for by the stages after it; the budget counts from the process's
+  start (imports, compiles, the wait for data: all of it). A skipped stage (fraction 0 or dropped) passes
+  its input on: its ``model/`` is a link to the previous stage's (from ``--init``, ``vae/`` and
+  ``vae-decoder/`` are the init model), so every stage finds the models it reads (Self Forcing's teacher
+  is the mp-bidirectional model, whatever that is then).
+* **Per device kind** (``devices.<platform>``, platform = ``jax.devices()[0].platform``): background
+  ``workers`` (0: every core but two) and their ``worker_nice``, ``reserve_s``, ``min_train_s``,
+  ``overhead_s`` per stage and stage-block overrides (``stages``: bigger batches on a GPU). Compute stays
+  float32: ``DiTConfig.dtype`` has a bfloat16 setting, but nothing tests training in it (and on GPUs
+  XLA's default precision already runs float32 matmuls on the tensor cores). With ``compile_cache``,
+  JAX's persistent compilation cache lives in ``WORK/jax-cache`` unless one is configured already (later
+  stages recompile the same latent encoder and rollout programs; the collect workers share it).
+* **Exports.** ``OUT/model/``: ``checkpoint.save`` with ``shard_bytes`` (safetensors shards of at most
+  ``export.shard_mib`` MiB, ``export.max_total_mib`` in all, float16 storage), ``config.json`` and
+  ``lineage.json``, rewritten atomically every ``save_every_min`` minutes from the stage ``export_from`` on
+  (the live train state, through the stage functions' ``on_model``) and at the end (the last stage's
+  model), so a run killed at its limit leaves the last complete model. ``lineage.json``: the command, the
+  init model and its own lineage, the devices, per stage its share, wall time, steps and the data it saw,
+  the git commit, start and end. ``solaris-train install OUT/model`` makes it the default;
+  ``--init OUT/model`` continues it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import json
+import logging
+import os
+import shutil
+import subprocess
+import tempfile
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from training import data as D
+
+logger = logging.getLogger(__name__)
+
+CONFIG_DIR = Path(__file__).parent / "configs"
+REPO = Path(__file__).resolve().parent.parent
+LINEAGE_FILE = "lineage.json"
+LINEAGE_FORMAT = "solaris_env.sprint_lineage"
+VAE_STAGES = ("vae", "vae-decoder")
+OPEN_ENDED_STEPS = 10**9  # a sprint stage runs until its deadline
+RESCAN_MAX_NEW = 64  # episodes a rescan adds at most (each is validated, then encoded when first drawn)
+OPTIONAL_STAGE_KEYS = ("ema_decay", "generator", "loss")  # keys a stage override may add to a base block
+HEARTBEAT_S = 30.0  # a progress line at most this often inside the DiT stages
+
+
+# ---------------------------------------------------------------------------------------------
+# Config
+# ---------------------------------------------------------------------------------------------
+
+
+def _number(value, where: str, low: float = 0.0, integer: bool = False):
+    """``value`` if it is a number >= ``low`` (an int with ``integer``), else a ValueError naming ``where``."""
+    kind = int if integer else (int, float)
+    if isinstance(value, bool) or not isinstance(value, kind) or not value >= low:
+        raise ValueError(f"{where} must be {'an int' if integer else 'a number'} >= {low:g}, got {value!r}")
+    return value
+
+
+@dataclass(frozen=True)
+class DeviceSettings:
+    """What depends on the accelerator: background collect ``workers`` (0: every core but two) and their
+    niceness (> 0: below the trainer), the time kept for the final export, the least training time worth a
+    stage's overhead, each stage's overhead (seconds besides its training steps) and stage-block overrides
+    ({stage: {key: value}})."""
+
+    workers: int
+    worker_nice: int
+    reserve_s: float
+    min_train_s: float
+    overhead_s: dict
+    stages: dict
+
+    @classmethod
+    def from_dict(cls, block: dict, where: str) -> DeviceSettings:
+        from training.train import STAGES
+
+        keys = [f.name for f in dataclasses.fields(cls)]
+        if sorted(block) != sorted(keys):
+            raise ValueError(f"{where} must have exactly the keys {keys}, got {sorted(block)}")
+        for name in ("overhead_s", "stages"):
+            unknown = sorted(set(block[name]) - set(STAGES))
+            if unknown:
+                raise ValueError(f"{where}.{name} names unknown stages {unknown}; expected stages of {STAGES}")
+        missing = sorted(set(STAGES) - set(block["overhead_s"]))
+        if missing:
+            raise ValueError(f"{where}.overhead_s lacks the stages {missing}")
+        return cls(_number(block["workers"], f"{where}.workers", integer=True),
+                   _number(block["worker_nice"], f"{where}.worker_nice", integer=True),
+                   float(_number(block["reserve_s"], f"{where}.reserve_s")),
+                   float(_number(block["min_train_s"], f"{where}.min_train_s")),
+                   {s: float(_number(v, f"{where}.overhead_s.{s}")) for s, v in block["overhead_s"].items()},
+                   block["stages"])
+
+
+@dataclass(frozen=True)
+class SprintConfig:
+    """``training/configs/sprint-<preset>.json`` (module docstring)."""
+
+    preset: str
+    stage_config: str  # the base stage blocks: training/configs/<stage_config>.json
+    seed: int
+    fractions: dict  # {stage: share} from scratch
+    fractions_from_init: dict  # {stage: share} from --init (no VAE stages)
+    save_every_min: float
+    export_from: str  # periodic exports from this stage on
+    export: dict  # shard_mib, max_total_mib, storage_dtype
+    collect: dict  # training.cli.collect_argv's block
+    min_train_episodes: int
+    rescan_s: float
+    compile_cache: bool
+    devices: dict  # {platform: DeviceSettings}
+
+    @classmethod
+    def load(cls, preset: str, path: str | Path | None = None) -> SprintConfig:
+        path = Path(path) if path else CONFIG_DIR / f"sprint-{preset}.json"
+        if not path.is_file():
+            known = sorted(p.stem.removeprefix("sprint-") for p in CONFIG_DIR.glob("sprint-*.json"))
+            raise FileNotFoundError(f"no sprint config {path}; presets with one: {known}")
+        return cls.from_dict(json.loads(path.read_text()), str(path))
+
+    @classmethod
+    def from_dict(cls, data: dict, where: str = "sprint config") -> SprintConfig:
+        from training.train import STAGES
+
+        keys = [f.name for f in dataclasses.fields(cls)]
+        if sorted(data) != sorted(keys):
+            raise ValueError(f"{where}: unknown keys {sorted(set(data) - set(keys))}, missing keys "
+                             f"{sorted(set(keys) - set(data))}")
+        for name in ("fractions", "fractions_from_init"):
+            for stage, share in data[name].items():
+                if stage not in STAGES:
+                    raise ValueError(f"{where}: {name} names unknown stage {stage!r}; expected stages of {STAGES}")
+                _number(share, f"{where}: {name}.{stage}")
+            if not sum(data[name].values()) > 0:
+                raise ValueError(f"{where}: {name} must give some stage a share > 0, got {data[name]}")
+        if set(data["fractions_from_init"]) & set(VAE_STAGES):
+            raise ValueError(f"{where}: fractions_from_init must not name {VAE_STAGES} (an --init model has its VAE)")
+        if data["export_from"] not in STAGES:
+            raise ValueError(f"{where}: export_from must be one of {STAGES}, got {data['export_from']!r}")
+        if sorted(data["export"]) != ["max_total_mib", "shard_mib", "storage_dtype"]:
+            raise ValueError(f"{where}: export must have exactly the keys max_total_mib, shard_mib, storage_dtype; "
+                             f"got {sorted(data['export'])}")
+        _number(data["export"]["shard_mib"], f"{where}: export.shard_mib", low=1 / 1024)
+        _number(data["export"]["max_total_mib"], f"{where}: export.max_total_mib", low=1 / 1024)
+        _number(data["save_every_min"], f"{where}: save_every_min", low=1 / 60)
+        _number(data["rescan_s"], f"{where}: rescan_s", low=0.1)
+        _number(data["min_train_episodes"], f"{where}: min_train_episodes", low=1, integer=True)
+        if not isinstance(data["compile_cache"], bool):
+            raise ValueError(f"{where}: compile_cache must be true or false, got {data['compile_cache']!r}")
+        devices = {platform: DeviceSettings.from_dict(block, f"{where}: devices.{platform}")
+                   for platform, block in data["devices"].items()}
+        return cls(**{**data, "devices": devices})
+
+    def device(self, platform: str) -> DeviceSettings:
+        if platform not in self.devices:
+            raise ValueError(f"sprint config has no devices.{platform} block (JAX runs on {platform!r}); it has "
+                             f"{sorted(self.devices)}")
+        return self.devices[platform]
+
+
+def stage_blocks(cfg: SprintConfig, device: DeviceSettings) -> dict:
+    """The stage config of ``training.train``'s functions: the base blocks, the device's overrides, and the
+    sprint's own settings (open-ended steps, no checkpoints, samples or LR cool-down, rescanning data)."""
+    from training.train import STAGES, load_stage_config
+
+    base = load_stage_config(cfg.stage_config)
+    if base["preset"] != cfg.preset:
+        raise ValueError(f"stage config {cfg.stage_config!r} is for preset {base['preset']!r}, the sprint's is "
+                         f"{cfg.preset!r}")
+    blocks = dict(base)
+    for stage in STAGES:
+        override = device.stages.get(stage, {})
+        unknown = sorted(set(override) - set(base[stage]) - set(OPTIONAL_STAGE_KEYS))
+        if unknown:
+            raise ValueError(f"sprint stage override {stage}: unknown keys {unknown}; expected keys of the "
+                             f"{cfg.stage_config!r} block {sorted(base[stage])} or {OPTIONAL_STAGE_KEYS}")
+        if override.get("lr_decay_steps", 0):
+            raise ValueError(f"sprint stage override {stage}.lr_decay_steps must be 0 (stages are open-ended: no "
+                             f"cool-down can be scheduled), got {override['lr_decay_steps']}")
+        blocks[stage] = {**base[stage], **override, "steps": OPEN_ENDED_STEPS, "ckpt_every": 0, "sample_every": 0,
+                         "lr_decay_steps": 0, "rescan_s": cfg.rescan_s}
+    return blocks
+
+
+def plan_shares(pending: list[tuple[str, float]], overhead_s: dict, min_train_s: float, left_s: float
+                ) -> tuple[dict, list[str]]:
+    """({stage: seconds}, dropped stages) for the stages still to run, ``pending`` = [(stage, fraction > 0)]
+    in order, within ``left_s``: while their overheads plus ``min_train_s`` each exceed it, the stage with
+    the smallest fraction (the later of equals) is dropped; each kept stage gets its overhead plus the
+    training time left split by fraction."""
+    kept = list(pending)
+    dropped = []
+    while kept and sum(overhead_s[s] + min_train_s for s, _ in kept) > left_s:
+        victim = min(reversed(kept), key=lambda sf: sf[1])
+        kept.remove(victim)
+        dropped.append(victim[0])
+    train_s = left_s - sum(overhead_s[s] for s, _ in kept)
+    total = sum(f for _, f in kept)
+    return {s: overhead_s[s] + train_s * f / total for s, f in kept}, dropped
+
+
+# ---------------------------------------------------------------------------------------------
+# Data made while training: the collector and the growing streams
+# ---------------------------------------------------------------------------------------------
+
+
+def _worker_init(height: int, width: int, nice: int, compile_cache: str | None) -> None:
+    """A collect worker: CPU-only JAX (the accelerator is the trainer's), ``nice`` below the trainer's
+    priority, with the sprint's compilation cache (a later sprint's workers start rendering sooner)."""
+    os.environ["JAX_PLATFORMS"] = "cpu"
+    if compile_cache:
+        os.environ["JAX_COMPILATION_CACHE_DIR"] = compile_cache
+    os.nice(nice)
+    from solaris_env.engine.cli import get_renderer
+
+    get_renderer(height, width)
+
+
+class Collector:
+    """The engine's training-data jobs run by ``workers`` background processes into ``data_dir``.
+
+    ``start()`` returns at once; ``counts()`` tells the finished episodes per split (and failures);
+    ``stop()`` ends the workers (an episode being written is abandoned: its staging dir is cleaned at
+    the next start, and the final directories never hold part of one)."""
+
+    def __init__(self, data_dir: Path, preset_name: str, block: dict, workers: int, test_first: bool,
+                 nice: int = 0, compile_cache: str | None = None) -> None:
+        from solaris_env.engine import cli as engine_cli
+        from solaris_env.engine.recorder import clean_staging, episode_complete
+        from solaris_env.world_model.config import preset
+        from training.cli import collect_argv
+
+        self.data_dir = Path(data_dir)
+        args = engine_cli.build_parser().parse_args(collect_argv(self.data_dir, preset(preset_name), block))
+        args.chunk_ticks = engine_cli.auto_chunk_ticks(*args.resolution)
+        clean_staging(self.data_dir)
+        jobs = [j for j in engine_cli.training_jobs(args) if not episode_complete(self.data_dir, j.key())]
+        first_test = next((j for j in jobs if j.split == "test"), None) if test_first else None
+        self.jobs = [first_test, *(j for j in jobs if j is not first_test)] if first_test else jobs
+        self.nice, self.compile_cache = nice, compile_cache
+        self.workers = workers or max(1, (os.cpu_count() or 1) - 2)  # 0: every core but two (the trainer's)
+        self.resolution = args.resolution
+        self.done = {"train": 0, "test": 0}
+        self.failed: list[str] = []
+        self._split = {(j.episode, j.instance): j.split for j in self.jobs}
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._pool = None
+        self._thread: threading.Thread | None = None
+
+    def start(self) -> Collector:
+        import multiprocessing as mp
+
+        from solaris_env.engine.cli import collect_one
+
+        if not self.jobs:
+            return self
+        ctx = mp.get_context("spawn")
+        self._pool = ctx.Pool(self.workers, initializer=_worker_init, initargs=(*self.resolution, self.nice,
+                                                                                   self.compile_cache))
+        results = self._pool.imap_unordered(collect_one, self.jobs)
+
+        def consume():
+            while not self._stop.is_set():
+                try:
+                    res = results.next(timeout=0.5)
+                except ctx.TimeoutError:
+                    continue
+                except StopIteration:
+                    return
+                with self._lock:
+                    if res["error"] is None:
+                        self.done[self._split[(res["episode"], res["instance"])]] += 1
+                    else:
+                        self.failed.append(res["error"])
+                        logger.warning("collect: episode %d failed:\n%s", res["episode"], res["error"])
+
+        self._thread = threading.Thread(target=consume, name="collect-results", daemon=True)
+        self._thread.start()
+        return self
+
+    def counts(self) -> dict:
+        with self._lock:
+            return {**self.done, "failed": len(self.failed), "planned": len(self.jobs)}
+
+    def wait_for(self, train: int, test: int, deadline: float) -> None:
+        """Block until the data directory holds ``train`` / ``test`` finished episodes; ValueError when every
+        job ended without them or ``deadline`` (epoch seconds) passes."""
+        while True:
+            have = count_episodes(self.data_dir)
+            if have["train"] >= train and have["test"] >= test:
+                return
+            c = self.counts()
+            if c["train"] + c["test"] + c["failed"] >= c["planned"] or time.time() > deadline:
+                first = self.failed[0] if self.failed else "none failed"
+                raise ValueError(f"sprint: {have} episodes in {self.data_dir}, need {train} train and {test} test "
+                                 f"(collect {c}; first failure: {first})")
+            time.sleep(0.5)
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._pool is not None:
+            self._pool.terminate()
+            self._pool.join()
+        if self._thread is not None:
+            self._thread.join()
+
+
+def count_episodes(data_dir: Path) -> dict:
+    """Finished episodes per split of a Duet dataset directory (both bots' commit markers present)."""
+    from solaris_env.engine.recorder import TRAIN_DIR
+
+    return {split: sum(1 for p in (Path(data_dir) / TRAIN_DIR / split).glob("*_Alpha_*_episode_info.json")
+                       if Path(str(p).replace("_Alpha_", "_Bravo_", 1)).is_file())
+            for split in ("train", "test")}
+
+
+def _complete(alpha_mp4: Path) -> bool:
+    """All of an episode's files moved in: the recorder moves both bots' ``_episode_info.json`` last."""
+    bravo_mp4 = alpha_mp4.with_name(alpha_mp4.name.replace("_Alpha_", "_Bravo_", 1))
+    return all(p.with_name(p.name.removesuffix(".mp4") + "_episode_info.json").is_file()
+               for p in (alpha_mp4, bravo_mp4))
+
+
+class GrowingDuetDataset(D.DuetDataset):
+    """A ``DuetDataset`` that ``rescan()``s its directory for episodes finished since. New episodes get the
+    next ids (ids follow arrival, not file names: fine for training, not for eval-id files). ``history``:
+    (epoch seconds, episodes, frames) at the start and after every rescan that added some."""
+
+    def __init__(self, *args, **kw) -> None:
+        super().__init__(*args, **kw)
+        self.history = [self._stats()]
+
+    def _add_episode(self, alpha_mp4: Path) -> None:
+        if _complete(alpha_mp4):  # one still being moved in is picked up by a later rescan
+            super()._add_episode(alpha_mp4)
+
+    def rescan(self, max_new: int = RESCAN_MAX_NEW) -> list[int]:
+        """Add up to ``max_new`` episodes finished since; returns the new valid ids."""
+        known = set(self.stems)
+        fresh = [p for p in sorted(self.directory.glob(f"*_{self.bots[0]}_*.mp4"), key=lambda p: p.name)
+                 if p.name.removesuffix(".mp4") not in known and _complete(p)][:max_new]
+        first = self.num_episodes
+        for alpha_mp4 in fresh:
+            self._add_episode(alpha_mp4)
+        new = [i for i in range(first, self.num_episodes) if self.is_valid(i)]
+        if fresh:
+            self.history.append(self._stats())
+            logger.info("%s/%s: %d new episodes, %d in all", self.name, self.split, len(new), self.num_episodes)
+        return new
+
+    def _stats(self) -> tuple[float, int, int]:
+        frames = sum(rec.num_records for i in self.valid_ids for rec in self.recordings(i))
+        return time.time(), len(self.valid_ids), frames
+
+
+class DuetPlayers:
+    """Each bot's view of a (growing) Duet dataset as single-player episodes, the ``VPTDataset`` interface
+    ``SinglePlayerSegmentSampler`` and ``LatentClips`` read: episode ``2 i + p`` is player p of Duet episode
+    i, its actions the Duet ones (what the VPT export's round trip gives back, ``engine.vpt_export``)."""
+
+    def __init__(self, duet) -> None:
+        self.duet, self.frames, self.name, self.split = duet, duet.frames, "duet-players", duet.split
+
+    @property
+    def skipped(self):
+        return self.duet.skipped
+
+    @property
+    def num_episodes(self) -> int:
+        return 2 * self.duet.num_episodes
+
+    @property
+    def valid_ids(self) -> list[int]:
+        return [2 * i + p for i in self.duet.valid_ids for p in (0, 1)]
+
+    def is_valid(self, episode_id: int) -> bool:
+        return self.duet.is_valid(episode_id // 2)
+
+    def episode(self, episode_id: int) -> D.VPTEpisode:
+        rec = self.duet.recordings(episode_id // 2)[episode_id % 2]
+        return D.VPTEpisode(rec.video, rec.actions, rec.act_T25)
+
+    def rescan(self, max_new: int = RESCAN_MAX_NEW) -> list[int]:
+        return [2 * i + p for i in self.duet.rescan(max_new) for p in (0, 1)]
+
+
+class _Rescanning:
+    """A sampler whose ``next()`` first rescans its dataset every ``rescan_s`` seconds, the new episodes
+    joining the candidates (``add_episode``)."""
+
+    def __init__(self, dataset, num_frames: int, seed: int, rescan_s: float, **ranks) -> None:
+        super().__init__(dataset, num_frames, seed=seed, **ranks)
+        self.rescan_s = float(rescan_s)
+        self._next_scan = time.monotonic() + self.rescan_s
+
+    def next(self):
+        if time.monotonic() >= self._next_scan:
+            for episode_id in self.dataset.rescan():
+                self.add_episode(episode_id)
+            self._next_scan = time.monotonic() + self.rescan_s
+        return super().next()
+
+
+class RescanningMultiplayerSampler(_Rescanning, D.MultiplayerSegmentSampler):
+    """``MultiplayerSegmentSampler`` over a ``GrowingDuetDataset``."""
+
+
+class RescanningSinglePlayerSampler(_Rescanning, D.SinglePlayerSegmentSampler):
+    """``SinglePlayerSegmentSampler`` over ``DuetPlayers``."""
+
+
+STREAMS: list = []  # the growing streams' (Duet dataset, sampler) in creation order: the sprint's data record
+
+
+def growing_stream(data_dir: Path, cfg, num_frames: int, seed: int, rescan_s: float, single_player: bool,
+                   rank: int = 0, num_ranks: int = 1):
+    """(dataset, sampler) over ``data_dir/duet/train`` that picks up new episodes every ``rescan_s`` s:
+    Duet segments, or with ``single_player`` each bot's view (``DuetPlayers``). Registered in ``STREAMS``."""
+    duet = GrowingDuetDataset(data_dir, "train", obs_size=(cfg.frame_height, cfg.frame_width), frame_cache_mb=4096)
+    dataset = DuetPlayers(duet) if single_player else duet
+    sampler_cls = RescanningSinglePlayerSampler if single_player else RescanningMultiplayerSampler
+    sampler = sampler_cls(dataset, num_frames, seed, rescan_s, rank=rank, num_ranks=num_ranks)
+    STREAMS.append((duet, sampler))
+    return dataset, sampler
+
+
+def data_record(streams: list) -> dict:
+    """What a stage's training streams saw: episodes and frames when the stage started and at its end,
+    the segments drawn and the rescans that added episodes."""
+    if not streams:
+        return {}
+    duet = streams[0][0]
+    (_, ep0, fr0), (_, ep1, fr1) = duet.history[0], duet.history[-1]
+    return {"episodes_at_start": ep0, "frames_at_start": fr0, "episodes_at_end": ep1, "frames_at_end": fr1,
+            "segments_drawn": sum(s.step for _, s in streams), "rescans_with_new_episodes": len(duet.history) - 1}
+
+
+# ---------------------------------------------------------------------------------------------
+# Exports and lineage
+# ---------------------------------------------------------------------------------------------
+
+
+def process_start_time() -> float:
+    """Epoch seconds at which this process started (Linux ``/proc``; else now): a CLI sprint's clock."""
+    try:
+        ticks = int(Path("/proc/self/stat").read_text().rsplit(")", 1)[1].split()[19])
+        boot = next(int(line.split()[1]) for line in Path("/proc/stat").read_text().splitlines()
+                    if line.startswith("btime "))
+        return min(time.time(), boot + ticks / os.sysconf("SC_CLK_TCK"))
+    except (OSError, ValueError, IndexError, StopIteration):
+        return time.time()
+
+
+def git_commit() -> dict | None:
+    """The checkout's commit (and whether tracked files differ from it), or None without git."""
+    try:
+        head = subprocess.run(["git", "-C", str(REPO), "rev-parse", "HEAD"], capture_output=True, text=True,
+                              timeout=10, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "-C", str(REPO), "status", "--porcelain", "--untracked-files=no"],
+                               capture_output=True, text=True, timeout=10, check=True).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return {"commit": head, "modified_tracked_files": bool(dirty)}
+
+
+def read_lineage(model: Path) -> dict | None:
+    path = Path(model) / LINEAGE_FILE
+    return json.loads(path.read_text()) if path.is_file() else None
+
+
+def _iso(t: float) -> str:
+    return time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(t))
+
+
+class Exporter:
+    """Writes ``dest`` (``OUT/model``): the model's shards, config and ``lineage.json``, atomically."""
+
+    def __init__(self, dest: Path, cfg: SprintConfig, lineage: dict, t0: float) -> None:
+        self.dest, self.cfg, self.lineage, self.t0 = Path(dest), cfg, lineage, t0
+        self.every_s = cfg.save_every_min * 60
+        self.last = time.time()
+
+    def due(self) -> bool:
+        return time.time() - self.last >= self.every_s
+
+    def export(self, model, source: str, step: int | None = None, final: bool = False) -> None:
+        from solaris_env.world_model import checkpoint
+        from solaris_env.world_model.world_model import COMPONENTS
+
+        t = time.time()
+        self.lineage["exports"].append({"at_s": round(t - self.t0, 1), "stage": source, "step": step, "final": final})
+        checkpoint.save(self.dest, model.config, dict(zip(COMPONENTS, model.params)),
+                        storage_dtype=self.cfg.export["storage_dtype"],
+                        shard_bytes=int(self.cfg.export["shard_mib"] * 2**20),
+                        max_total_bytes=int(self.cfg.export["max_total_mib"] * 2**20),
+                        extra_files={LINEAGE_FILE: json.dumps(self.lineage, indent=1)})
+        self.last = time.time()
+        print(f"sprint: exported {source}{'' if step is None else f' at step {step}'} to {self.dest} in "
+              f"{self.last - t:.1f} s", flush=True)
+
+    def export_dir(self, model: Path, source: str, final: bool = False) -> None:
+        from solaris_env.world_model.world_model import WorldModel
+
+        self.export(WorldModel.load(model), source, final=final)
+
+
+# ---------------------------------------------------------------------------------------------
+# The sprint
+# ---------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class SprintArgs:
+    """``solaris-train sprint``'s options (``training.cli``)."""
+
+    preset: str
+    out: Path
+    budget_min: float
+    init: str | None = None  # "default", a model directory, or None (from scratch)
+    data: Path | None = None  # default: WORK/data
+    config: Path | None = None  # default: training/configs/sprint-<preset>.json
+    work: Path | None = None  # stage runs, latents, rollouts; default: a temporary directory, removed after
+    started: float | None = None  # epoch seconds the budget counts from (the CLI: the process's start); None: now
+
+    def command(self) -> list[str]:
+        cmd = ["solaris-train", "sprint", "--preset", self.preset, "--out", str(self.out),
+               "--budget-min", f"{self.budget_min:g}"]
+        for flag, value in (("--init", self.init), ("--data", self.data), ("--config", self.config),
+                            ("--work", self.work)):
+            if value is not None:
+                cmd += [flag, str(value)]
+        return cmd
+
+
+def resolve_init(init: str | None) -> Path | None:
+    from training.train import DEFAULT_MODEL_DIR
+
+    if init is None:
+        return None
+    path = DEFAULT_MODEL_DIR if init == "default" else Path(init)
+    if not (path / "config.json").is_file():
+        raise FileNotFoundError(f"--init {init}: {path} holds no model (config.json); expected 'default' or a "
+                                f"model directory")
+    return path
+
+
+def _link(model: Path, target: Path) -> None:
+    """``model`` (a stage's model/ path) -> a symlink to ``target``, replacing whatever is there."""
+    if model.is_symlink() or model.is_file():
+        model.unlink()
+    elif model.exists():
+        shutil.rmtree(model)
+    model.parent.mkdir(parents=True, exist_ok=True)
+    model.symlink_to(Path(target).resolve(), target_is_directory=True)
+
+
+def run_sprint(args: SprintArgs) -> Path:
+    """Run a sprint (module docstring); returns ``OUT/model``."""
+    t0 = time.time() if args.started is None else args.started
+    if not args.budget_min > 0:
+        raise ValueError(f"--budget-min must be > 0, got {args.budget_min}")
+    cfg = SprintConfig.load(args.preset, args.config)
+    if cfg.preset != args.preset:
+        raise ValueError(f"sprint config {args.config} is for preset {cfg.preset!r}, --preset is {args.preset!r}")
+    init = resolve_init(args.init)
+    if init is not None:
+        from solaris_env.world_model.checkpoint import read_config
+        if (name := read_config(init).name) != cfg.preset:
+            raise ValueError(f"--init {args.init}: a {name!r} model; the sprint trains preset {cfg.preset!r}")
+    work = Path(tempfile.mkdtemp(prefix="solaris-sprint-")) if args.work is None else Path(args.work)
+    try:
+        with _compile_cache(work / "jax-cache" if cfg.compile_cache else None):
+            return Sprint(args, cfg, init, work, t0).run()
+    finally:
+        if args.work is None:
+            shutil.rmtree(work, ignore_errors=True)
+
+
+def compile_cache_dir() -> str | None:
+    """The persistent compilation cache JAX is configured with, if any."""
+    import jax
+
+    return getattr(jax.config, "jax_compilation_cache_dir", None)
+
+
+@contextlib.contextmanager
+def _compile_cache(directory: Path | None):
+    """JAX's persistent compilation cache in ``directory`` for the duration, unless one is configured (a JAX
+    that refuses the setting only costs the cache: a warning, never the sprint)."""
+    import jax
+
+    if directory is None or compile_cache_dir():
+        yield
+        return
+    try:
+        jax.config.update("jax_compilation_cache_dir", str(directory))
+    except Exception as err:  # noqa: BLE001 - an optional speed-up
+        logger.warning("sprint: no persistent compilation cache (%s)", err)
+        yield
+        return
+    try:
+        yield
+    finally:
+        jax.config.update("jax_compilation_cache_dir", None)
+
+
+class Sprint:
+    """One sprint's state: the clock, the plan, the collector, the lineage record and the exports."""
+
+    def __init__(self, args: SprintArgs, cfg: SprintConfig, init: Path | None, work: Path, t0: float) -> None:
+        import jax
+
+        self.args, self.cfg, self.init, self.t0 = args, cfg, init, t0
+        self.end = t0 + args.budget_min * 60
+        self.data = Path(args.data) if args.data else work / "data"
+        self.run_dir = work / "run"
+        self.platform = jax.devices()[0].platform
+        self.device = cfg.device(self.platform)
+        init_lineage = read_lineage(init) if init else None
+        generation = (init_lineage or {}).get("generation", 0) + 1
+        self.collect_block = {**cfg.collect, "seed": int(cfg.collect["seed"]) + 1000 * (generation - 1)}
+        self.lineage = {
+            "format": LINEAGE_FORMAT, "version": 1, "generation": generation, "command": args.command(),
+            "preset": cfg.preset, "config": dataclasses.asdict(cfg),
+            "init": None if init is None else {"model": args.init, "lineage": init_lineage},
+            "devices": [str(d) for d in jax.devices()], "platform": self.platform,
+            "device_kind": jax.devices()[0].device_kind, "git": git_commit(), "start_time": _iso(t0),
+            "budget_s": round(self.end - t0, 1), "collect": self.collect_block, "stages": [], "exports": []}
+        self.exporter = Exporter(Path(args.out) / "model", cfg, self.lineage, t0)
+
+    def left_s(self) -> float:
+        """Seconds left for training: to the budget's end less the reserve for the final export."""
+        return self.end - self.device.reserve_s - time.time()
+
+    def run(self) -> Path:
+        from training.train import model_dir
+
+        fractions = self.cfg.fractions_from_init if self.init else self.cfg.fractions
+        order = [s for s in self.stage_order() if fractions.get(s, 0) > 0]
+        need_test = int(any(s in VAE_STAGES for s in order))  # the VAE stages evaluate on duet/test
+        collector = Collector(self.data, self.cfg.preset, self.collect_block, self.device.workers, bool(need_test),
+                              self.device.worker_nice, compile_cache_dir()).start()
+        print(f"sprint: {self.platform} ({self.lineage['device_kind']}); budget {self.args.budget_min:g} min, "
+              f"{time.time() - self.t0:.0f} s spent starting; recording {len(collector.jobs)} episodes with "
+              f"{collector.workers} workers into {self.data}", flush=True)
+        try:
+            collector.wait_for(self.cfg.min_train_episodes, need_test, self.end - self.device.reserve_s)
+            self.lineage["first_data_s"] = round(time.time() - self.t0, 1)
+            print(f"sprint: {count_episodes(self.data)} episodes after {self.lineage['first_data_s']:.0f} s; "
+                  f"training", flush=True)
+            latest = self.train_stages({s: fractions[s] for s in order})
+        finally:
+            collector.stop()
+        self.lineage["collected"] = {**collector.counts(),
+                                     **{f"on_disk_{k}": v for k, v in count_episodes(self.data).items()}}
+        self.lineage["end_time"] = _iso(time.time())  # of training; the final export follows
+        self.lineage["training_wall_s"] = round(time.time() - self.t0, 1)
+        self.exporter.export_dir(model_dir(self.run_dir, latest), latest, final=True)
+        self.print_timing()
+        return self.exporter.dest
+
+    def stage_order(self) -> list[str]:
+        from training.train import STAGES
+
+        return [s for s in STAGES if not (self.init and s in VAE_STAGES)]
+
+    def train_stages(self, fractions: dict) -> str:
+        """Every stage in order, trained (``plan_shares``) or skipped; returns the last stage trained."""
+        from training.train import STAGES, model_dir
+
+        latest, trained = None, False
+        if self.init is not None:
+            for stage in VAE_STAGES:
+                _link(model_dir(self.run_dir, stage), self.init)
+            latest = VAE_STAGES[-1]
+        dropped: dict[str, str] = {}
+        ratios: list[float] = []  # each trained stage's time to its first step / its configured overhead
+        for stage in self.stage_order():
+            record = {"stage": stage, "fraction": fractions.get(stage, 0.0), "start_s": round(time.time() - self.t0, 1)}
+            self.lineage["stages"].append(record)
+            if stage in fractions and latest is None and stage != "vae":
+                dropped[stage] = "no input model (the VAE stage did not run)"
+            if stage in fractions and stage not in dropped:
+                left = self.left_s()
+                scale = min(max(sum(ratios) / len(ratios), 0.5), 4.0) if ratios else 1.0
+                overhead = {s: v * scale for s, v in self.device.overhead_s.items()}
+                later = STAGES[STAGES.index(stage):]
+                pending = [(s, f) for s, f in fractions.items() if s in later and s not in dropped]
+                shares, no_time = plan_shares(pending, overhead, self.device.min_train_s, left)
+                record["overhead_scale"] = round(scale, 2)
+                dropped.update({s: f"no time: {left:.0f} s left for {', '.join(p for p, _ in pending)}"
+                                for s in no_time})
+            reason = "fraction 0" if stage not in fractions else dropped.get(stage)
+            if reason is not None:
+                record.update(status="skipped", reason=reason)
+                if latest is not None:
+                    _link(model_dir(self.run_dir, stage), model_dir(self.run_dir, latest))
+                print(f"sprint: {stage}: skipped ({reason})", flush=True)
+                continue
+            record.update(share_s=round(shares[stage], 1), **self.train_stage(stage, time.time() + shares[stage]))
+            latest, trained = stage, True
+            if record["first_step_s"] is not None and self.device.overhead_s[stage] > 0:
+                ratios.append(record["first_step_s"] / self.device.overhead_s[stage])
+            print(f"sprint: {stage}: {record['steps']} steps in {record['wall_s']:.1f} s (share "
+                  f"{shares[stage]:.1f} s); data {record['data']}", flush=True)
+        if not trained:
+            raise ValueError(f"sprint: no stage ran within {self.args.budget_min:g} min (see the skip reasons above)")
+        return latest
+
+    def train_stage(self, stage: str, deadline: float) -> dict:
+        """Train ``stage`` until ``deadline``; returns its lineage record: wall time, steps, when its first step
+        ended (setup and JIT compile: seconds after the stage's start, when that step was logged), its last
+        losses and the data it saw."""
+        from training.cli import call_stage
+        from training.metrics import read_metrics
+        from training.train import STAGES, stage_dir
+
+        shutil.rmtree(stage_dir(self.run_dir, stage), ignore_errors=True)  # no stale checkpoints or rollouts
+        exportable = STAGES.index(stage) >= STAGES.index(self.cfg.export_from)
+        t_start, n_streams = time.time(), len(STREAMS)
+        beat = [t_start]
+
+        def on_model(step: int, make_model) -> None:
+            if exportable and self.exporter.due():
+                self.exporter.export(make_model(), stage, step)
+            if time.time() - beat[0] >= HEARTBEAT_S:
+                beat[0] = time.time()
+                print(f"sprint: {stage}: step {step}, {beat[0] - t_start:.0f} s in, {deadline - beat[0]:.0f} s to "
+                      f"its deadline", flush=True)
+
+        kw = {"seed": self.cfg.seed, "steps": OPEN_ENDED_STEPS, "resume": False, "deadline": deadline}
+        if stage not in VAE_STAGES:
+            kw["on_model"] = on_model
+        call_stage(stage, self.run_dir, self.data, stage_blocks(self.cfg, self.device), **kw)
+        metrics = read_metrics(stage_dir(self.run_dir, stage) / "metrics.jsonl")
+        seen = data_record(STREAMS[n_streams:])
+        del STREAMS[n_streams:]  # their datasets (and frame caches) go with the stage
+        first, last = (metrics[0], metrics[-1]) if metrics else ({}, {})
+        return {"status": "ran", "wall_s": round(time.time() - t_start, 1), "steps": last.get("step", 0),
+                "first_step_s": round(first["time"] - t_start, 1) if first.get("step") == 1 else None,
+                "losses": {k: v for k, v in last.items() if k.endswith("loss")}, "data": seen}
+
+    def print_timing(self) -> None:
+        print("sprint: stage              status   share_s   wall_s    steps  train episodes (start -> end)")
+        for r in self.lineage["stages"]:
+            d = r.get("data") or {}
+            seen = f"{d['episodes_at_start']} -> {d['episodes_at_end']}" if d else r.get("reason", "")
+            share, wall = r.get("share_s", 0.0), r.get("wall_s", 0.0)
+            print(f"sprint: {r['stage']:<18} {r['status']:<7} {share:8.1f} {wall:8.1f} {r.get('steps', 0):8d}  {seen}")
+        total, budget = time.time() - self.t0, self.end - self.t0
+        print(f"sprint: total {total:.1f} s of the {budget:.0f} s budget ({'within' if total <= budget else 'OVER'}); "
+              f"data after {self.lineage['first_data_s']:.0f} s; collected {self.lineage['collected']}", flush=True)
+
+
+__all__ = ["Collector", "DuetPlayers", "Exporter", "GrowingDuetDataset", "SprintArgs", "SprintConfig",
+           "growing_stream", "plan_shares", "run_sprint", "stage_blocks"]
