@@ -21,6 +21,8 @@ import logging
 import sys
 from pathlib import Path
 
+from solaris_env.cli_support import add_debug_flag, run_command
+
 STAGE_COMMANDS = ("vae", "vae-decoder", "sp", "mp-bidirectional", "mp-causal", "self-forcing",
                   "refiner")  # ``all``, in order
 EXTRA_STAGE_COMMANDS = ("mp-rollout",)  # training.train.EXTRA_STAGES: run by name only
@@ -180,6 +182,7 @@ def cmd_install(args) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="solaris-train", description=__doc__.split("\n\n")[0])
+    add_debug_flag(parser, top=True)
     sub = parser.add_subparsers(dest="command", required=True)
 
     def common(p):
@@ -241,6 +244,8 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("--dest", default=None, help="default: solaris_env/assets/default")
     i.add_argument("--files", nargs="*", default=[], help="copied alongside (training log, eval.json, contact sheet)")
     i.set_defaults(func=cmd_install)
+    for p in sub.choices.values():
+        add_debug_flag(p)
     return parser
 
 
@@ -249,6 +254,10 @@ def main(argv: list[str] | None = None) -> int:
     logging.getLogger("absl").setLevel(logging.WARNING)  # orbax logs every save step at INFO
     args = build_parser().parse_args(argv)
     args.whole_process = argv is None  # this process runs just the command (a sprint's clock starts with it)
+    return run_command("solaris-train", _run, args, debug=args.debug)
+
+
+def _run(args) -> int:
     if args.command not in ("install", "with-decoder", "action-conditioning"):
         from training.distributed import maybe_initialize_distributed
         maybe_initialize_distributed()  # multi-host when JAX_COORDINATOR_ADDRESS / JAX_NUM_PROCESSES are set

@@ -248,8 +248,21 @@ def weight_files(path) -> list[pathlib.Path]:
     return shards
 
 
+def read_meta(path) -> dict:
+    """The parsed ``config.json`` of a checkpoint directory; a damaged file raises ValueError naming it."""
+    file = pathlib.Path(path) / CONFIG_FILE
+    try:
+        meta = json.loads(file.read_text())
+    except json.JSONDecodeError as err:
+        raise ValueError(f"{file}: not valid JSON ({err.msg} at line {err.lineno}, column {err.colno}); "
+                         "the checkpoint is damaged") from err
+    if not isinstance(meta, dict):
+        raise ValueError(f"{file}: expected a JSON object, got {type(meta).__name__}")
+    return meta
+
+
 def read_config(path) -> WorldModelConfig:
-    meta = json.loads((pathlib.Path(path) / CONFIG_FILE).read_text())
+    meta = read_meta(path)
     if meta.get("format") != FORMAT:
         raise ValueError(f"{path}/{CONFIG_FILE} has format {meta.get('format')!r}; expected {FORMAT!r}")
     if meta.get("version") != VERSION:
@@ -265,7 +278,10 @@ def load(path) -> tuple[WorldModelConfig, tuple]:
     config = read_config(path)
     tensors = {}
     for file in weight_files(path):
-        part = load_file(str(file))
+        try:
+            part = load_file(str(file))
+        except Exception as err:  # safetensors raises its own error type, naming no file
+            raise ValueError(f"{file}: not a readable safetensors file ({err}); it is truncated or corrupt") from err
         repeated = sorted(set(part) & set(tensors))
         if repeated:
             raise ValueError(f"{file}: tensors {repeated} are also in an earlier shard")
@@ -273,7 +289,7 @@ def load(path) -> tuple[WorldModelConfig, tuple]:
     abstract = _abstract(config)
     expected = {f"{name}/{key}": _spec(v) for name, (_, state) in abstract.items()
                 for key, v in flat_params(state).items()}
-    storage = json.loads((path / CONFIG_FILE).read_text()).get("storage_dtype")
+    storage = read_meta(path).get("storage_dtype")
     if storage is not None:  # half-precision storage of float32 parameters (``save(storage_dtype=...)``)
         tensors = {k: v.astype(np.float32) if v.dtype == np.dtype(storage) and expected.get(k, ((), ""))[1] == "float32"
                    else v for k, v in tensors.items()}

@@ -288,3 +288,31 @@ def test_float16_storage_round_trips_within_half_precision(tmp_path):
             np.testing.assert_allclose(np.asarray(got), np.asarray(value), rtol=1e-3, atol=1e-4)
     with pytest.raises(ValueError, match="storage_dtype"):
         checkpoint.save(tmp_path / "bad", model.config, params, storage_dtype="int8")
+
+
+def test_a_damaged_checkpoint_names_the_file_and_what_is_wrong(tmp_path):
+    """A broken config.json or a truncated weights file gives a ValueError naming the file, not a bare
+    JSONDecodeError or safetensors' header error."""
+    import shutil
+
+    import pytest as _pytest
+
+    from solaris_env.world_model import checkpoint as ckpt
+    from solaris_env.world_model.world_model import WorldModel
+
+    src = tmp_path / "model"
+    WorldModel.from_preset("test", seed=0).save(src)
+    broken = tmp_path / "broken_json"
+    shutil.copytree(src, broken)
+    (broken / "config.json").write_text('{"format": ')
+    with _pytest.raises(ValueError, match=r"broken_json/config\.json: not valid JSON .*line 1"):
+        ckpt.load(broken)
+    (broken / "config.json").write_text("[1, 2]")
+    with _pytest.raises(ValueError, match=r"config\.json: expected a JSON object"):
+        ckpt.load(broken)
+    truncated = tmp_path / "truncated"
+    shutil.copytree(src, truncated)
+    weights = next(truncated.glob("weights*.safetensors"))
+    weights.write_bytes(weights.read_bytes()[:100])
+    with _pytest.raises(ValueError, match=rf"{weights.name}: not a readable safetensors file .*truncated or corrupt"):
+        ckpt.load(truncated)
