@@ -1,5 +1,5 @@
 """Peak memory and speed of naive vs Checkpointed Self Forcing generator steps (paper Fig. "Checkpointed
-Self Forcing" (E); model-spec §6.3).
+Self Forcing" (E); docs/model.md §6.3).
 
     .venv/bin/python -m benchmarks.self_forcing_memory                      # tiny preset, L_t 6..24, ~10 min
     .venv/bin/python -m benchmarks.self_forcing_memory --lengths 6 --steps 1 --preset test   # smoke run

@@ -7,7 +7,7 @@ No official weights can be downloaded here, so the check is on weights of our ow
 
 1. build the preset with random weights (``WorldModel.from_preset``);
 2. write them as the three official orbax ``StandardCheckpointer`` directories (``solaris.pt``,
-   ``vae.pt``, ``clip.pt``: model-spec §9, the reference's key trees and dtypes) and load that directory
+   ``vae.pt``, ``clip.pt``: docs/model.md §9.2, the reference's key trees and dtypes) and load that directory
    with ``WorldModel.load`` -- every parameter must come back equal to what the files hold (the reference's
    bf16 leaves cast back to f32), and the DiT key tree must equal ``solaris-param-tree.txt``;
 3. stream from the loaded model: ``init`` at each B in ``--worlds``, then ``--steps`` env steps, timing each (frames

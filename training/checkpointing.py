@@ -1,5 +1,5 @@
-"""Training-state checkpoints (model-spec §6.2, §9): orbax step directories holding a train-state pytree and
-a JSON ``extra`` dict (data-sampler state, stage name, config), written together.
+"""Training-state checkpoints (docs/training.md, docs/model.md §9): orbax step directories holding a
+train-state pytree and a JSON ``extra`` dict (data-sampler state, stage name, config), written together.
 
     ckpt = Checkpointer(stage_dir / "checkpoints", keep=3)
     if (latest := ckpt.latest_step()) is not None:
@@ -97,7 +97,7 @@ class Checkpointer:
         directory: the checkpoint root (created); step directories are named by the step number.
         keep: how many of the most recent checkpoints to keep (older ones are deleted after a save).
         keep_period: additionally keep every checkpoint whose step is a multiple of this (e.g. 20000,
-            model-spec §6.2); None keeps only the ``keep`` latest.
+            docs/training.md); None keeps only the ``keep`` latest.
     """
 
     def __init__(self, directory: str | Path, keep: int = 3, keep_period: int | None = None) -> None:

@@ -1,7 +1,7 @@
 """Training data: Duet (multiplayer) and VPT-layout (single-player) loaders, seeded resumable segment
 samplers, batching, and an optional per-episode latent cache.
 
-Reference semantics (model-spec §8.2-§8.4, engine-spec §2.6-§2.8):
+Reference semantics (docs/data-format.md §2, §5, §7):
 
 * **Duet layout** ``{data_dir}/{name}/{split}/`` with ``name="duet"`` (training) or e.g.
   ``name="eval/rotationEval"``, ``split="test"`` (eval sets). Every ``*_Alpha_*.mp4`` (sorted by file
@@ -13,7 +13,7 @@ Reference semantics (model-spec §8.2-§8.4, engine-spec §2.6-§2.8):
   state before action t). The two bots are aligned by ``renderTime``, not by index.
 * **Actions**: Duet records -> ``mineflayer_records_to_vectors``; VPT JSONL -> ``vpt_jsonl_to_vectors``
   (stateful, so whole episodes are converted once and sliced); then ``camera_linear`` on dims 23/24.
-* **VPT camera sign** (a decision, model-spec §8.1): VPT's +dx is a turn to the right and +dy a look
+* **VPT camera sign** (a decision, docs/data-format.md §7.3): VPT's +dx is a turn to the right and +dy a look
   down, Mineflayer's +yaw turns left and +pitch looks up. The reference feeds both into the model
   unreconciled. :class:`VPTDataset` flips dims 23/24 of VPT actions by default so that one action
   vector means one motion in both datasets (the stage-1 weights then agree with stages 2-4);
@@ -31,7 +31,7 @@ Determinism and resume: the samplers draw segment ``i`` of a run with
 ``np.random.default_rng([seed, rank, i])``, so the stream depends only on (seed, rank, step);
 ``state_dict()`` / ``load_state_dict()`` save and restore the step, and a resumed run draws exactly
 the segments the uninterrupted run would have drawn. (The reference's multiplayer sampler ignores the
-configured seed and replays its stream on resume, model-spec §13.10; ours does neither.)
+configured seed and replays its stream on resume, docs/data-format.md §7.5; ours does neither.)
 
 Shapes: a segment is ``obs_TPHW3`` uint8 and ``act_TP25`` float32 (P=2 for Duet, P=1 for VPT: single
 player is multiplayer with one player); :func:`make_batch` stacks and right-pads them to
@@ -311,7 +311,7 @@ class _EpisodeTable:
 
 
 class DuetDataset(_EpisodeTable):
-    """Two-player episodes in the Duet layout (model-spec §8.2), validated once at construction.
+    """Two-player episodes in the Duet layout (docs/data-format.md §7.1), validated once at construction.
 
     Args:
         data_dir: dataset root; episodes are read from ``data_dir/name/split``.
@@ -445,7 +445,7 @@ class VPTEpisode:
 
 
 class VPTDataset(_EpisodeTable):
-    """Single-player episodes in the VPT layout (model-spec §8.3), segments with a player axis of 1.
+    """Single-player episodes in the VPT layout (docs/data-format.md §7.3), segments with a player axis of 1.
 
     ``{data_dir}/vpt/{split}/episodes_info.json`` = ``{"num_episodes", "episodes": [{"video_path",
     "actions_path", "length", "episode_id"}]}`` (paths relative to the split dir); episode ids are
@@ -669,7 +669,7 @@ class MultiplayerSegmentSampler(_ResumableSampler):
 class SinglePlayerSegmentSampler(_ResumableSampler):
     """Uniform episode among this rank's episodes with length >= num_frames + 1, uniform start in
     ``[0, length - num_frames - 1]`` (so the last frame read, start + num_frames, exists; the reference
-    allows one start more and would read past the end, model-spec §8.3).
+    allows one start more and would read past the end, docs/data-format.md §7.3).
 
     Args: as :class:`MultiplayerSegmentSampler`, with a :class:`VPTDataset`.
     """
@@ -697,7 +697,7 @@ class SinglePlayerSegmentSampler(_ResumableSampler):
 
 
 class EvalSegments:
-    """Fixed eval segments from an ``eval_ids_<name>.json`` file (model-spec §8.5).
+    """Fixed eval segments from an ``eval_ids_<name>.json`` file (docs/data-format.md §7.6).
 
     Rows ``[episode_id, start1, stop1, start2, stop2]`` (multiplayer) or ``[episode_id, start, stop]``
     (single player); stops are ignored (the loader uses start + num_frames).

@@ -1,4 +1,4 @@
-"""Data-parallel SPMD training over a 1-D ``"data"`` mesh (model-spec §11), optionally FSDP-sharded.
+"""Data-parallel SPMD training over a 1-D ``"data"`` mesh (docs/training.md), optionally FSDP-sharded.
 
     maybe_initialize_distributed()              # multi-host only; before any other JAX call
     mesh = make_mesh()                          # all devices on the "data" axis

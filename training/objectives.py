@@ -1,4 +1,4 @@
-"""Flow-matching objective of the bidirectional and causal stages (model-spec §6.1).
+"""Flow-matching objective of the bidirectional and causal stages (docs/model.md §6.1).
 
     x_sigma = (1 - sigma) * x0 + sigma * eps,   sigma = t / 1000,   target v = eps - x0,
     loss = mean over every element of (v_theta - (eps - x0))^2, in f32.
@@ -21,7 +21,7 @@ from collections.abc import Callable
 import jax
 import jax.numpy as jnp
 
-NUM_TRAIN_TIMESTEPS = 1000  # t in 0..1000, sigma = t / 1000 (model-spec §6.1; SamplerConfig.num_train_timesteps)
+NUM_TRAIN_TIMESTEPS = 1000  # t in 0..1000, sigma = t / 1000 (docs/model.md §6.1; SamplerConfig.num_train_timesteps)
 NOISE_TYPES = ("standard", "diffusion_forcing")
 
 # dit_forward(x, t, cond, context, mouse, keyboard) -> v, shaped like x

@@ -1,6 +1,6 @@
 """Generated-vs-ground-truth samples: the streaming rollout of a segment and the videos/sheets of it.
 
-Alignment (``prepare_batch``, model-spec §4.3): in a segment, frame j is the observation after action j.
+Alignment (``prepare_batch``, docs/model.md §4.3): in a segment, frame j is the observation after action j.
 Latent frame 0 is frame 0 (the given first frame); the env step i >= 1 consumes actions
 ``[k(i-1)+1, k*i]`` and produces frames ``k(i-1)+1 .. k*i``. So a rollout of ``T = 1 + k*n`` frames
 reproduces the ground truth's indices one for one.

@@ -1,4 +1,4 @@
-"""Stage 4: Self Forcing with DMD (model-spec §6.3), checkpointed (the paper's Algorithm 1) and naive.
+"""Stage 4: Self Forcing with DMD (docs/model.md §6.3), checkpointed (the paper's Algorithm 1) and naive.
 
     graphs, state = create_self_forcing_state(generator, critic, teacher, *make_optimizers(sf_cfg), rng=0)
     generator_step = make_checkpointed_generator_step(graphs, generator_tx, sf_cfg)   # or make_naive_...
@@ -80,7 +80,7 @@ CONDITIONING_KEYS = ("cond", "context", "mouse", "keyboard")  # what the rollout
 
 @dataclass(frozen=True, slots=True)
 class SelfForcingConfig:
-    """Stage-4 hyperparameters (model-spec §6.2-§6.3 defaults)."""
+    """Stage-4 hyperparameters (docs/model.md §6.2-§6.3 defaults)."""
 
     generator_every: int = 5  # generator update every n-th iteration; the critic updates every iteration
     generator_lr: float = 3e-6
@@ -162,7 +162,7 @@ def step_keys(state: SelfForcingState, stream: int) -> tuple[jax.Array, jax.Arra
 
 
 # ---------------------------------------------------------------------------------------------
-# Rollout (model-spec §5.3 with a random exit step)
+# Rollout (docs/model.md §5.3 with a random exit step)
 # ---------------------------------------------------------------------------------------------
 
 

@@ -1,4 +1,4 @@
-"""Jitted train steps of the flow-matching stages (model-spec §6.1-§6.2), functional NNX.
+"""Jitted train steps of the flow-matching stages (docs/model.md §6.1-§6.2), functional NNX.
 
     graphdef, state = TrainState.create(dit, make_optimizer(1e-4), rng=0)
     train_step = make_train_step(graphdef, "forward_causal", "diffusion_forcing", tx)
@@ -46,7 +46,7 @@ BATCH_KEYS = ("x0", "cond", "context", "mouse", "keyboard")
 
 
 def scheduled_lr(lr: float, step, total_steps: int | None = None, decay_steps: int = 0):
-    """Learning rate of update ``step`` (0-based): ``lr`` constant (model-spec §6.2), or, with ``decay_steps``
+    """Learning rate of update ``step`` (0-based): ``lr`` constant (docs/model.md §6.2), or, with ``decay_steps``
     > 0, constant until the last ``decay_steps`` of ``total_steps`` and then linear towards 0
     (warmup-stable-decay without warmup): update ``total_steps - 1`` uses ``lr / decay_steps``. Works on
     Python ints (the logged value) and traced arrays (optax's update count)."""
@@ -59,7 +59,7 @@ def scheduled_lr(lr: float, step, total_steps: int | None = None, decay_steps: i
 
 
 def make_optimizer(lr: float, total_steps: int | None = None, decay_steps: int = 0) -> optax.GradientTransformation:
-    """AdamW of every stage (model-spec §6.2): b1 0.9, b2 0.95, eps 1e-8, no weight decay, no clipping; the
+    """AdamW of every stage (docs/model.md §6.2): b1 0.9, b2 0.95, eps 1e-8, no weight decay, no clipping; the
     spec's constant LR unless ``decay_steps`` > 0 (``scheduled_lr``: a linear cool-down over the last
     ``decay_steps`` of ``total_steps``, for the short CPU runs of the tiny preset)."""
     schedule = (optax.constant_schedule(lr) if decay_steps == 0
@@ -124,7 +124,7 @@ def ema_update(ema: Any, params: Any, decay) -> Any:
 
 def prepare_batch(vae, image_encoder, obs_BTPHW3: jax.Array, act_BTP25: jax.Array, cfg: WorldModelConfig
                   ) -> dict[str, jax.Array]:
-    """Video + actions -> the DiT's inputs in its stream layout (model-spec §8.4, §5.4). Traceable.
+    """Video + actions -> the DiT's inputs in its stream layout (docs/model.md §7.3, §5.4). Traceable.
 
     Args:
         vae: the frozen ``CausalVideoVAE`` (x0 = normalised posterior mean, no sampling).

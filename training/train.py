@@ -481,7 +481,7 @@ def _model_hook(on_model: Callable | None, current: Callable[[Any], WorldModel])
 def train_self_forcing(out: str | Path, data_dir: str | Path, stage_cfg: dict, seed: int = 0,
                        steps: int | None = None, resume: bool = True, fsdp: bool = False,
                        deadline: float | None = None, on_model: Callable | None = None) -> Path:
-    """Stage 4: generator from mp-causal, critic and frozen teacher from mp-bidirectional (model-spec
+    """Stage 4: generator from mp-causal, critic and frozen teacher from mp-bidirectional (docs/model.md
     §6.3); ``steps`` counts iterations (a critic update each, a generator update every 5th). The
     generator mode is ``stage_cfg["generator"]``: "checkpointed" (default) or "naive". ``deadline`` and
     ``on_model`` as ``train_flow``'s."""

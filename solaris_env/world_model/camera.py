@@ -6,7 +6,7 @@ Mouse convention (``spaces.env_action_to_model_vector``, Mineflayer signs): the 
 view's content right, looking up moves it down.
 
 ``frame_turns`` gives each latent frame's turn (the last ``k`` ticks of its action window are the ticks between
-latent frames i - 1 and i; model-spec §4.3), ``content_shift`` how far it moves the view's content (camera RoPE
+latent frames i - 1 and i; docs/model.md §4.3), ``content_shift`` how far it moves the view's content (camera RoPE
 moves the token positions by minus that, ``rope.camera_increments``). ``shift_latents`` moves a latent frame's content by a fractional
 number of latent pixels (linear interpolation, edges repeated): ``DiTConfig.camera_warp`` feeds the previous
 latent frame shifted by the frame's turn to the patch embedding, so following the camera is a copy of an input

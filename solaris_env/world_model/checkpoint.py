@@ -1,4 +1,4 @@
-"""World-model checkpoints: our format (safetensors + JSON) and the official orbax directories (model-spec §9).
+"""World-model checkpoints: our format (safetensors + JSON) and the official orbax directories (docs/model.md §9).
 
 Ours: a directory with
 
@@ -350,7 +350,7 @@ def load_official(path, config: WorldModelConfig | None = None) -> tuple[WorldMo
     if errors:
         raise ValueError("\n".join(errors))
 
-    stored = official.read_official(dirs["dit"], expected["dit"][0])  # DiT tree == ours (model-spec §1.1)
+    stored = official.read_official(dirs["dit"], expected["dit"][0])  # DiT tree == ours (docs/model.md §9.2-§9.3)
     dit = _merge(dit_graphdef, dit_state, {k: jnp.asarray(v, dit_params[k].dtype) for k, v in stored.items()})
     vae = official.load_official_vae(dirs["vae"], config.vae)
     encoder = official.load_official_image_encoder(dirs["image_encoder"], config.image_encoder)
