@@ -1,0 +1,279 @@
+"""``benchmarks.dream_fidelity``: the metrics on hand-made cases, the programs, and one tiny end-to-end run."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from benchmarks import dream_fidelity as df
+
+
+def _scene_HW3(seed: int = 0, size: int = 64) -> np.ndarray:
+    """A smooth random RGB scene (blobs a few pixels wide: structure the coarse motion estimate can follow)."""
+    rng = np.random.default_rng(seed)
+    coarse = rng.uniform(0, 255, (size // 4, size // 4, 3)).astype(np.float32)
+    import cv2
+
+    return np.clip(cv2.resize(coarse, (size, size), interpolation=cv2.INTER_CUBIC), 0, 255).astype(np.uint8)
+
+
+def _moving_THW3(motion, steps: int = 6, size: int = 64) -> np.ndarray:
+    """Frames of the scene seen by a camera that moves by ``motion`` (yaw, pitch, log zoom) every step."""
+    scene = _scene_HW3(size=size)
+    out = []
+    for t in range(steps):
+        m = np.asarray(motion, np.float64) * t
+        out.append(np.stack([df.warp_HW(scene[..., c].astype(np.float32), m) for c in range(3)], -1))
+    return np.clip(np.stack(out), 0, 255).astype(np.uint8)
+
+
+# ---------------------------------------------------------------------------------------------
+# Frame statistics
+# ---------------------------------------------------------------------------------------------
+
+
+def test_view_change_is_mean_abs_grey_difference():
+    a = np.zeros((2, 4, 4, 3), np.uint8)
+    a[1] = 6  # every pixel +6 in every channel
+    np.testing.assert_allclose(df.view_change_T(a), [6.0])
+    assert df.view_change_T(a[:1]).shape == (0,)
+    with pytest.raises(ValueError, match=r"\(T, H, W, 3\)"):
+        df.view_change_T(a[0])
+
+
+def test_frozen_dream_has_view_change_ratio_zero_and_frozen_fraction_one():
+    engine = _moving_THW3((4.0, 0.0, 0.0))
+    frozen = np.repeat(engine[:1], len(engine), axis=0)
+    ce, cd = df.view_change_T(engine), df.view_change_T(frozen)
+    assert (ce > df.FROZEN_ENGINE_MIN).all()
+    assert df.ratio(cd.sum(), ce.sum()) == 0.0
+    is_frozen, counted = df.frozen_T(cd, ce)
+    assert df.ratio(is_frozen.sum(), counted.sum()) == 1.0
+    # the engine against itself: ratio 1, nothing frozen
+    assert df.ratio(ce.sum(), ce.sum()) == 1.0
+    assert df.frozen_T(ce, ce)[0].sum() == 0
+    assert df.ratio(1.0, 0.0) is None  # nothing to compare with
+
+
+def test_sharpness_of_a_blurred_copy_is_lower():
+    import cv2
+
+    frames = np.stack([_scene_HW3(s) for s in range(3)])
+    noisy = np.clip(frames + np.random.default_rng(0).integers(-40, 40, frames.shape), 0, 255).astype(np.uint8)
+    blurred = np.stack([cv2.GaussianBlur(f, (0, 0), 1.5) for f in noisy])
+    ratio = df.sharpness_T(blurred).sum() / df.sharpness_T(noisy).sum()
+    assert ratio < 0.5
+    flat = np.full((1, 8, 8, 3), 100, np.uint8)
+    assert df.sharpness_T(flat)[0] == 0.0
+
+
+def test_psnr():
+    a = np.zeros((2, 4, 4, 3), np.uint8)
+    b = a.copy()
+    b[1] = 255
+    p = df.psnr_T(a, b)
+    assert p[0] == np.inf and p[1] == pytest.approx(0.0)
+    with pytest.raises(ValueError, match="differ in shape"):
+        df.psnr_T(a, b[:1])
+
+
+# ---------------------------------------------------------------------------------------------
+# Direction of motion
+# ---------------------------------------------------------------------------------------------
+
+
+def test_warp_turn_right_moves_content_left():
+    img = np.zeros((64, 64), np.float32)
+    img[:, 40:44] = 255  # a vertical bar right of the centre
+    moved = df.warp_HW(img, (10.0, 0.0, 0.0))
+    cols = np.flatnonzero(moved[32] > 128)
+    assert cols.mean() < 40  # turning right: the bar moves left (~0.45 px/deg at the centre, more at the sides)
+    down = df.warp_HW(np.where(np.arange(64)[:, None] > 40, 255.0, 0.0).astype(np.float32) + 0 * img,
+                      (0.0, 10.0, 0.0))
+    assert np.flatnonzero(down[:, 32] > 128).min() < 40  # looking down: the ground rises in the view
+    zoom = df.warp_HW(img, (0.0, 0.0, 0.2))
+    assert np.flatnonzero(zoom[32] > 128).mean() > 42  # zooming in: off-centre content moves outwards
+
+
+@pytest.mark.parametrize("motion", [(4.0, 0.0, 0.0), (-6.0, 0.0, 0.0), (0.0, 5.0, 0.0), (0.0, 0.0, 0.06)])
+def test_fit_motion_recovers_a_known_camera_motion(motion):
+    frames = df.prepare_THW(_moving_THW3(motion, steps=3))
+    fitted = df.fit_motion(frames[0], frames[1])
+    assert (np.abs(fitted - np.asarray(motion)) <= [0.75, 0.75, 0.015]).all(), fitted
+    assert df.has_motion(fitted[None])[0]
+
+
+def test_direction_agreement_engine_self_frozen_reversed_mirrored():
+    for motion in [(5.0, 0.0, 0.0), (0.0, 0.0, 0.05), (-3.0, 2.0, 0.0)]:
+        engine = _moving_THW3(motion, steps=6)
+        s = df.direction_scores(engine, engine)
+        assert s["valid"].all() and (s["engine"] > 0.5).all()
+        assert df.direction_agreement(s["engine"], s["dream"], s["valid"]) == pytest.approx(1.0)
+        frozen = df.direction_scores(engine, np.repeat(engine[:1], len(engine), 0), motion_T3=s["motion"])
+        assert df.direction_agreement(s["engine"], frozen["dream"], s["valid"]) == pytest.approx(0.0, abs=1e-9)
+        reversed_ = df.direction_scores(engine, engine[::-1], motion_T3=s["motion"])
+        assert df.direction_agreement(s["engine"], reversed_["dream"], s["valid"]) < -0.8
+    turning = _moving_THW3((5.0, 0.0, 0.0), steps=6)
+    s = df.direction_scores(turning)
+    mirrored = df.direction_scores(turning, turning[:, :, ::-1], motion_T3=s["motion"])
+    assert df.direction_agreement(s["engine"], mirrored["dream"], s["valid"]) < -0.5
+
+
+def test_direction_score_is_antisymmetric_and_zero_for_equal_frames():
+    f = df.prepare_THW(_moving_THW3((4.0, 1.0, 0.02), steps=2))
+    m = df.fit_motion(f[0], f[1])
+    assert df.direction_score(f[0], f[1], m) == pytest.approx(-df.direction_score(f[1], f[0], m))
+    assert df.direction_score(f[0], f[0], m) == 0.0
+    still = np.repeat(_scene_HW3()[None], 3, 0)
+    s = df.direction_scores(still)
+    assert not s["valid"].any()  # no motion: nothing to agree with
+    assert df.direction_agreement(s["engine"], s["engine"], s["valid"]) is None
+
+
+def test_camera_constants_match_the_renderer():
+    from solaris_env.engine.constants import FOV_DEG
+    from solaris_env.engine.render import RenderConfig
+
+    assert df.FOV_DEG == FOV_DEG and df.DISPLAY_ASPECT == RenderConfig().display_aspect
+
+
+# ---------------------------------------------------------------------------------------------
+# Partner ground truth
+# ---------------------------------------------------------------------------------------------
+
+
+def test_partner_truth_follows_the_judges_labels():
+    assert [df.visible_truth(n) for n in (0, 1, 2, 50)] == ["no", None, "yes", "yes"]
+    assert df.position_truth(0, None) == "no player"
+    assert df.position_truth(1, 0.5) is None
+    assert [df.position_truth(9, u) for u in (0.1, 0.5, 0.9)] == ["left", "center", "right"]
+    assert df.position_truth(9, 1 / 3 + 0.01) is None  # too close to a third boundary
+    hits, n = df.agreement(["yes", "no", "yes", "no"], ["yes", "yes", None, "no"], np.array([1, 1, 1, 0], bool))
+    assert (hits, n) == (1, 2)
+
+
+# ---------------------------------------------------------------------------------------------
+# Programs and start states
+# ---------------------------------------------------------------------------------------------
+
+
+def test_programs_are_long_enough_and_pitch_stays_bounded():
+    for p in df.PROGRAMS.values():
+        assert p.steps >= (256 if p.name in ("random", "bot") else 64)
+        assert p.kind in ("learner", "partner", "both")
+    for name, sign in (("pitch_up", -1), ("pitch_down", 1)):
+        d = np.array([df.learner_action(name, t)["camera"][0] for t in range(64)])
+        assert (np.sign(d) == sign).mean() == 0.75  # the program's way, mostly
+        cum = np.cumsum(d)
+        assert np.abs(cum).max() <= 30 and (np.sign(cum[cum != 0]) == sign).all()
+    assert df.learner_action("yaw_left_15", 0)["camera"].tolist() == [0.0, -15.0]
+    assert df.learner_action("mine", 0)["hotbar.2"] == 1 and df.learner_action("mine", 5)["attack"] == 1
+    assert [df.learner_action("place", t)["use"] for t in range(3, 20)].count(1) == 3
+    with pytest.raises(ValueError, match="not a learner program"):
+        df.learner_action("partner_toward", 0)
+
+
+def test_partner_programs_close_the_loop_on_the_engine():
+    def infos(d):
+        return {df.LEARNER: {"pos": np.zeros(3)}, df.PARTNER: {"pos": np.array([d, 0.0, 0.0])}}
+
+    assert df.partner_action("partner_toward", 0, infos(8.0))["forward"] == 1
+    assert df.partner_action("partner_toward", 0, infos(1.5))["forward"] == 0
+    assert df.partner_action("partner_away", 0, infos(8.0))["back"] == 1
+    assert df.partner_action("partner_away", 0, infos(25.0))["back"] == 0
+    across = [df.partner_action("partner_across", t, infos(8.0)) for t in range(64)]
+    assert sum(a["left"] for a in across) == sum(a["right"] for a in across) == 32
+
+
+def test_random_play_is_seeded_and_bounded():
+    infos = {a: {"pitch": 0.3} for a in (df.LEARNER, df.PARTNER)}
+    a, b = df.RandomPlay(3), df.RandomPlay(3)
+    for t in range(20):
+        x, y = a(t, infos), b(t, infos)
+        for agent in x:
+            assert np.array_equal(x[agent]["camera"], y[agent]["camera"])
+            assert np.abs(x[agent]["camera"]).max() <= 15
+
+
+def test_merge_ticks():
+    from solaris_env.spaces import noop, step_ticks
+
+    ticks = [noop() for _ in range(4)]
+    ticks[0]["forward"] = ticks[1]["forward"] = 1  # held on half of the ticks: held
+    ticks[0]["jump"] = 1  # one tick of a held key: not held
+    ticks[3]["attack"] = 1  # a once-key on any tick
+    for t in ticks:
+        t["camera"] = np.array([1.0, 9.0], np.float32)
+    a = df.merge_ticks(ticks)
+    assert (a["forward"], a["jump"], a["attack"]) == (1, 0, 1)
+    assert a["camera"][0] == 4.0  # summed
+    assert 34.37 < a["camera"][1] < 34.38  # clipped at what 4 ticks turn (4 x 8.594 deg): nothing carried over
+    ticks_k, pending = step_ticks(a, 4)
+    assert not pending.any()
+
+
+class _FakeState:
+    def __init__(self, world, in_view):
+        self.world, self.in_view = world, in_view
+
+
+def test_assign_states_puts_a_normal_world_first_and_partner_programs_in_view():
+    states = [_FakeState(w, v) for w in df.WORLD_CLASSES for v in (True, False)] + \
+             [_FakeState("normal", v) for v in (True, False)]
+    programs = list(df.PROGRAMS.values())
+    out = df.assign_states(states, programs, 3, 2)
+    assert out["bot"] == []
+    for p in programs:
+        if p.name == "bot":
+            continue
+        idx = out[p.name]
+        assert len(idx) == (2 if p.steps > 64 else 3) and len(set(idx)) == len(idx)
+        assert states[idx[0]].world == "normal"
+        if p.kind == "partner":
+            assert all(states[i].in_view for i in idx)
+    used = {i for v in out.values() for i in v}
+    assert {states[i].world for i in used} == set(df.WORLD_CLASSES)
+
+
+def test_model_specs_and_labels_never_absolute():
+    assert df.parse_model_spec("default:no-refiner") == ("default", True)
+    assert df.parse_model_spec("runs/x/model") == ("runs/x/model", False)
+    assert df.model_label("default") == "shipped default"
+    assert df.model_label("default:no-refiner") == "shipped default, refiner off"
+    assert df.model_label("preset:test") == "preset test (random init)"
+    assert df.model_label(str(df.REPO / "runs" / "a" / "model")) == "runs/a/model"
+    assert not df.model_label("/somewhere/else/runs/b/model").startswith("/")
+
+
+# ---------------------------------------------------------------------------------------------
+# End to end (test preset: random weights, 32 x 32)
+# ---------------------------------------------------------------------------------------------
+
+
+@pytest.mark.slow  # ~50 s on 2 shared cores, ~45 of them building and compiling the test-preset model
+def test_end_to_end_tiny_run_writes_json_png_mp4(tmp_path):
+    out = tmp_path / "fid.json"
+    result = df.main(["--model", "preset:test:no-refiner", "--quick", "--steps", "3", "--per-program", "1",
+                      "--programs", "forward", "yaw_right_15", "partner_toward", "bot", "--out", str(out)])
+    text = out.read_text()
+    assert json.loads(text)["benchmark"] == "dream_fidelity"
+    assert (tmp_path / "fid.png").stat().st_size > 0 and (tmp_path / "fid.mp4").stat().st_size > 0
+    assert str(tmp_path) not in text and str(df.REPO) not in text  # no absolute paths
+    setup = result["setup"]
+    assert setup["models"] == [{"spec": "preset:test:no-refiner", "name": "preset test (random init), refiner off",
+                                "refiner": False}]
+    assert {s["world"] for s in setup["start_states"]} == set(df.WORLD_CLASSES)
+    assert {s["partner_in_view"] for s in setup["start_states"]} == {True, False}
+    assert setup["bot_episode"]["type"]
+    res = result["results"]["preset test (random init), refiner off"]
+    assert set(res["programs"]) == {"forward", "yaw_right_15", "partner_toward", "bot"}
+    row = res["programs"]["yaw_right_15"]["windows"]["1-8"]
+    assert row["steps"] == 3 and row["view_change_engine"] > 1.0
+    assert row["sharpness_ratio"] is not None and row["psnr_db"] > 0
+    assert res["programs"]["partner_toward"]["all"]["visible_counted_steps"] >= 1
+    assert "normal" in res["surfaces"] and res["overall"]["steps"] > 0
+    v = result["estimator_validation"]["all"]
+    assert v["valid_steps"] > 0 and v["agreement_self"] == 1.0 and v["agreement_frozen"] == 0.0
+    assert v["agreement_reversed"] == -1.0
+    assert math.isfinite(result["wall_s"]) and "machine" in result
