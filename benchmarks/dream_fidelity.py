@@ -488,10 +488,10 @@ def bot_episode(steps: int, k: int, seed: int = START_SEED, world_kind: str = "n
     daylight whose bots act for ``steps`` x ``k`` ticks: the first such episode of ``EpisodeConfig(seed, 0,
     episode)``, episode = 0, 1, ... (else the longest of ``max_tries``). Training episodes start at a random
     time of day; night ones are skipped (dark frames say little about the dream). The bots are driven tick by
-    tick as ``runner.run_episode`` drives them (the runner's own ``_setup`` and ``_release_barrier``); every k
+    tick as ``runner.run_episode`` drives them (``setup_episode``, ``next_actions``, ``release_barrier``); every k
     ticks of their actions become one env step (``merge_ticks``)."""
     from solaris_env.engine.bots import registry, runner
-    from solaris_env.engine.bots.controller import Barrier, EpisodeAbort
+    from solaris_env.engine.bots.controller import EpisodeAbort
     from solaris_env.real_env import EngineState
     from solaris_env.spaces import noop
 
@@ -503,7 +503,7 @@ def bot_episode(steps: int, k: int, seed: int = START_SEED, world_kind: str = "n
         spec = registry.get(etype)
         if spec.world is not None and spec.world != world_kind:
             continue
-        game, bots = runner._setup(cfg, spec, world_seed, shared)  # noqa: SLF001 (the runner's own setup)
+        game, bots = runner.setup_episode(cfg, spec, world_seed, shared)
         if game.world_age0 % 24000 >= DAY_END_TICKS:
             continue
         for _ in range(runner.PRE_ROLL_TICKS):
@@ -514,22 +514,10 @@ def bot_episode(steps: int, k: int, seed: int = START_SEED, world_kind: str = "n
         done, waiting, ticks = [False] * n, [None] * n, []
         try:
             while len(ticks) < steps * k:
-                actions = []
-                for i in range(n):
-                    a = noop()
-                    if not done[i] and waiting[i] is None:
-                        try:
-                            item = next(gens[i])
-                            if isinstance(item, Barrier):
-                                waiting[i] = item
-                            else:
-                                a = item
-                        except StopIteration:
-                            done[i] = True
-                    actions.append(a)
+                actions, _ = runner.next_actions(gens, waiting, done)
                 if all(done):
                     break
-                runner._release_barrier(bots, waiting, done)  # noqa: SLF001
+                runner.release_barrier(bots, waiting, done)
                 game.step(actions)
                 ticks.append(actions)
         except EpisodeAbort:
@@ -1078,7 +1066,7 @@ def run(model_specs: Sequence[str], program_names: Sequence[str], setup: Setup, 
     import dataclasses
 
     from solaris_env.dream_env import DreamParallelEnv
-    from solaris_env.real_env import RealParallelEnv, render_game_views, screen_position
+    from solaris_env.real_env import RealParallelEnv
 
     unknown = [p for p in program_names if p not in PROGRAMS]
     if unknown:

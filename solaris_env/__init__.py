@@ -7,10 +7,11 @@ imported, in either order: importing gymnasium costs ~0.2-0.6 s, which ``import 
 ``solaris-env`` CLI's start-up) does not pay unless gymnasium is used.
 """
 
-import importlib
 import importlib.abc
 import importlib.util
 import sys
+
+from solaris_env.lazy import lazy_getattr
 
 __version__ = "0.1.0"
 
@@ -24,11 +25,7 @@ _LAZY = {
 }
 __all__ = sorted(_LAZY)
 
-
-def __getattr__(name):
-    if name in _LAZY:
-        return getattr(importlib.import_module(_LAZY[name]), name)
-    raise AttributeError(f"module 'solaris_env' has no attribute {name!r}")
+__getattr__ = lazy_getattr(__name__, _LAZY)
 
 
 def _register_gymnasium_envs() -> None:

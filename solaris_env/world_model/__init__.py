@@ -1,7 +1,7 @@
 """The Solaris world model (docs/model.md): ``WorldModel`` (streaming rollouts, checkpoints), its frozen
 configs and presets. Submodules are imported on first use, so ``import solaris_env.world_model`` stays cheap."""
 
-import importlib
+from solaris_env.lazy import lazy_getattr
 
 _LAZY = {
     "WorldModel": "solaris_env.world_model.world_model",
@@ -9,9 +9,4 @@ _LAZY = {
     "preset": "solaris_env.world_model.config",
 }
 __all__ = sorted(_LAZY)
-
-
-def __getattr__(name):
-    if name in _LAZY:
-        return getattr(importlib.import_module(_LAZY[name]), name)
-    raise AttributeError(f"module 'solaris_env.world_model' has no attribute {name!r}")
+__getattr__ = lazy_getattr(__name__, _LAZY)

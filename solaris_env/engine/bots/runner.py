@@ -168,7 +168,9 @@ def make_record(game: Game, i: int, action_record: dict, t: int, cfg: EpisodeCon
     }
 
 
-def _setup(cfg: EpisodeConfig, spec: registry.EpisodeSpec, world_seed: int, shared: int) -> tuple[Game, list[Bot]]:
+def setup_episode(cfg: EpisodeConfig, spec: registry.EpisodeSpec, world_seed: int, shared: int
+                  ) -> tuple[Game, list[Bot]]:
+    """The episode's world, players (spawned apart), game and bots, with the type's setup applied."""
     world = generate(cfg.world_kind, world_seed, variant=cfg.instance, cfg=cfg.world)
     spawn_rng = np.random.default_rng([world_seed, 1])
     pos = spawn_positions(world, spawn_rng, cfg.num_players, spec.spawn_min, spec.spawn_max, cfg.world)
@@ -193,7 +195,7 @@ def run_episode(cfg: EpisodeConfig) -> EpisodeOutput:
     spec = registry.get(etype)
     if spec.world is not None and spec.world != cfg.world_kind:
         cfg = EpisodeConfig(cfg.seed, cfg.instance, cfg.episode, spec.world, etype, cfg.num_players, cfg.world)
-    game, bots = _setup(cfg, spec, world_seed, shared)
+    game, bots = setup_episode(cfg, spec, world_seed, shared)
     trace = Trace.start(game)
 
     def script(bot: Bot):
@@ -206,27 +208,15 @@ def run_episode(cfg: EpisodeConfig) -> EpisodeOutput:
     errors, reason = [False] * n, ""
     tick_events = []
     for t in range(round(spec.max_s * C.TICKS_PER_SECOND)):
-        actions = []
-        for i in range(n):
-            a = noop()
-            if not done[i] and waiting[i] is None:
-                try:
-                    item = next(gens[i])
-                    if isinstance(item, Barrier):
-                        waiting[i] = item
-                    else:
-                        a = item
-                except StopIteration:
-                    done[i] = True
-                except EpisodeAbort as e:
-                    errors[i], reason = True, f"{bots[i].name}: {e}"
-            actions.append(a)
+        actions, abort = next_actions(gens, waiting, done, errors)
+        if abort is not None:
+            reason = f"{bots[abort[0]].name}: {abort[1]}"
         if any(errors):
             break
         if all(done):
             break
         try:
-            _release_barrier(bots, waiting, done)
+            release_barrier(bots, waiting, done)
         except EpisodeAbort as e:
             errors, reason = [True] * n, str(e)
             break
@@ -256,7 +246,33 @@ def run_episode(cfg: EpisodeConfig) -> EpisodeOutput:
                          tick_events)
 
 
-def _release_barrier(bots: list[Bot], waiting: list, done: list[bool]) -> None:
+def next_actions(gens: list, waiting: list, done: list[bool], errors: list[bool] | None = None
+                 ) -> tuple[list[dict], tuple[int, EpisodeAbort] | None]:
+    """One tick of the bots' generators: each unfinished bot that does not wait at a barrier yields its next
+    env action (a ``Barrier`` makes it wait, the end of its generator finishes it); the others act no-op.
+    A bot's ``EpisodeAbort`` marks ``errors[i]`` and is returned as (i, error) -- raised when ``errors`` is None.
+    Updates ``waiting`` / ``done`` in place."""
+    actions, abort = [], None
+    for i, gen in enumerate(gens):
+        a = noop()
+        if not done[i] and waiting[i] is None:
+            try:
+                item = next(gen)
+                if isinstance(item, Barrier):
+                    waiting[i] = item
+                else:
+                    a = item
+            except StopIteration:
+                done[i] = True
+            except EpisodeAbort as e:
+                if errors is None:
+                    raise
+                errors[i], abort = True, (i, e)
+        actions.append(a)
+    return actions, abort
+
+
+def release_barrier(bots: list[Bot], waiting: list, done: list[bool]) -> None:
     """Release a barrier once every unfinished bot waits on the same name (abort on a mismatch)."""
     live = [i for i in range(len(bots)) if not done[i]]
     if not live or any(waiting[i] is None for i in live):
