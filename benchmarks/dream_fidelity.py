@@ -53,6 +53,7 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parent.parent
 RESULTS = Path(__file__).parent / "results" / "dream_fidelity.json"
+START_WORLD_XZ = 320  # blocks: the start worlds' width (``make_states``)
 DAY_END_TICKS = 12_000  # Minecraft time of day (ticks): 0 sunrise, 6000 noon, 12000 sunset
 START_SEED = 700_000  # far from the training (0..) and evaluation (100_000..) start seeds of agents.common
 WINDOWS = ((1, 8), (9, 32), (33, 64), (65, 256))  # env steps, inclusive
@@ -390,10 +391,10 @@ def _distance(infos: dict) -> float:
 
 def learner_action(name: str, t: int) -> dict:
     """Step t's action of the learner in a ``"learner"`` program."""
-    fixed = {"forward": dict(forward=1), "back": dict(back=1), "strafe_left": dict(left=1),
-             "strafe_right": dict(right=1), "jump": dict(jump=1), "sprint_forward": dict(forward=1, sprint=1),
-             "yaw_right_5": dict(camera=(0.0, 5.0)), "yaw_left_5": dict(camera=(0.0, -5.0)),
-             "yaw_right_15": dict(camera=(0.0, 15.0)), "yaw_left_15": dict(camera=(0.0, -15.0))}
+    fixed = {"forward": {"forward": 1}, "back": {"back": 1}, "strafe_left": {"left": 1},
+             "strafe_right": {"right": 1}, "jump": {"jump": 1}, "sprint_forward": {"forward": 1, "sprint": 1},
+             "yaw_right_5": {"camera": (0.0, 5.0)}, "yaw_left_5": {"camera": (0.0, -5.0)},
+             "yaw_right_15": {"camera": (0.0, 15.0)}, "yaw_left_15": {"camera": (0.0, -15.0)}}
     if name in fixed:
         return make_action(**fixed[name])
     if name in ("pitch_up", "pitch_down"):
@@ -459,7 +460,13 @@ def merge_ticks(ticks: Sequence[dict]) -> dict:
     keys pressed on at least half of the ticks, once-keys pressed on any, the camera turns summed and clipped to
     what k ticks turn (k x ``CAMERA_TICK_LIMIT_DEG`` per axis; the bots never turn faster, so nothing is carried
     over into the next step)."""
-    from solaris_env.spaces import BINARY_KEYS, CAMERA_KEY, CAMERA_TICK_LIMIT_DEG, ONCE_KEYS, noop
+    from solaris_env.spaces import (
+        BINARY_KEYS,
+        CAMERA_KEY,
+        CAMERA_TICK_LIMIT_DEG,
+        ONCE_KEYS,
+        noop,
+    )
 
     action = noop()
     for key in BINARY_KEYS:
@@ -570,13 +577,21 @@ def make_states(per_world: int, start_seed: int = START_SEED, resolution: int | 
     whole turn, on the game itself, as ``agents.common.make_start_states``: the env would spread it over
     several steps). Reset seeds start at ``start_seed``; the flat variant is the reset seed's draw, so
     seeds are tried in order and each one goes to the first world class still short of states (in-view
-    states whose partner is hidden, e.g. behind a hill, are skipped)."""
+    states whose partner is hidden, e.g. behind a hill, are skipped).
+
+    The worlds are ``START_WORLD`` boxes: twice the env's default width with the same spawn square around the
+    centre, so no program reaches the edge of the world (a 64-step sprint covers ~72 blocks; in the default
+    160-block box the players spawn as little as 34 blocks from the edge, beyond which the view shows void)."""
+    from solaris_env.engine.worldgen import WorldConfig
     from solaris_env.real_env import RealParallelEnv, render_game_views, screen_position
 
     want = {w: per_world for w in WORLD_CLASSES}
     want["normal"] = 2 * per_world if normal is None else normal
     have: dict[str, list[StartState]] = {w: [] for w in WORLD_CLASSES}
     env = RealParallelEnv(num_players=2, world="flat", resolution=resolution)
+    default = WorldConfig()
+    env.world_config = WorldConfig(size_xz=START_WORLD_XZ, margin=START_WORLD_XZ // 2 - round(
+        default.playable_half_extent))  # the default spawn square (+-56 blocks), 104 blocks from the edge
     seed = start_seed
     while any(len(have[w]) < want[w] for w in WORLD_CLASSES):
         kind = "flat" if any(len(have[w]) < want[w] for w in WORLD_CLASSES if w != "normal") else "normal"
@@ -994,13 +1009,15 @@ def _label(img: np.ndarray, text: str, width: int) -> np.ndarray:
 def contact_sheet(rows: Sequence[tuple[Rollout, dict]], names: Sequence[str], scale: int = 2) -> np.ndarray:
     """RGB uint8 sheet: per program, the engine's row over each model's row; every (steps / 8)th step (every 8th
     of a 64-step program), frame 0 first."""
+    def pad(f):  # scaled up, with a 1-pixel white frame
+        return np.pad(cv2.resize(f, None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST),
+                      ((1, 1), (1, 1), (0, 0)), constant_values=255)
+
     blocks = []
     for rollout, dreams in rows:
         T = len(rollout.actions)
         every = max(1, T // 8)
         cols = list(range(0, T + 1, every))
-        up = lambda f: cv2.resize(f, None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST)
-        pad = lambda f: np.pad(up(f), ((1, 1), (1, 1), (0, 0)), constant_values=255)
         lines = [(f"{rollout.program} ({rollout.surface})\nengine", rollout.engine_THW3)]
         lines += [(f"dream:\n{n}", dreams[n]) for n in names]
         for text, frames in lines:

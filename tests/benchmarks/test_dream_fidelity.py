@@ -209,7 +209,7 @@ def test_merge_ticks():
     assert (a["forward"], a["jump"], a["attack"]) == (1, 0, 1)
     assert a["camera"][0] == 4.0  # summed
     assert 34.37 < a["camera"][1] < 34.38  # clipped at what 4 ticks turn (4 x 8.594 deg): nothing carried over
-    ticks_k, pending = step_ticks(a, 4)
+    _, pending = step_ticks(a, 4)
     assert not pending.any()
 
 
