@@ -39,6 +39,7 @@ from agents.common import (
 from agents.policies import make_policy
 from agents.rollouts import run_episode
 from agents.stats import mmrv, pearson, spearman, summarize
+from solaris_env.paths import portable_path, portable_text
 
 DEFAULT_POLICIES = ["noop", "random", "spin:15", "seeker:0", "seeker:0.25", "seeker:0.5", "seeker:0.75"]
 SPEARMAN_GOAL = 0.8
@@ -130,11 +131,12 @@ def main(argv: list[str] | None = None) -> dict:
             returns["real"].append(result.env_return)
             returns["real_judge"].append(result.side_returns[0])
             returns["dream"].append(run_episode(dream, policy, start, args.seed + e, partner).env_return)
-        row = {"name": spec, **{kind: summarize(r, resamples=args.resamples) for kind, r in returns.items()}}
+        row = {"name": portable_text(spec, parts=3),  # ppo:PATH without the machine's directories
+               **{kind: summarize(r, resamples=args.resamples) for kind, r in returns.items()}}
         row["gap"] = row["dream"]["mean"] - row["real"]["mean"]
         row["wall_s"] = time.perf_counter() - t0
         rows.append(row)
-        print(f"  {spec:>40s}: dream {row['dream']['mean']:6.2f}  real {row['real']['mean']:6.2f}  "
+        print(f"  {row['name']:>40s}: dream {row['dream']['mean']:6.2f}  real {row['real']['mean']:6.2f}  "
               f"real_judge {row['real_judge']['mean']:6.2f}  ({row['wall_s']:.0f} s)", flush=True)
 
     # ---- agreement -------------------------------------------------------------------------
@@ -148,13 +150,13 @@ def main(argv: list[str] | None = None) -> dict:
         "setup": {"episodes": args.episodes, "max_steps": args.max_steps, "frames_per_step": k,
                   "frame_size": [height, width], "world": args.world, "partner": args.partner,
                   "start_seed": args.start_seed, "seed": args.seed,
-                  "world_model": args.checkpoint or (f"preset {args.preset} (random init)" if args.preset
-                                                     else "shipped default"),
-                  "judges": args.judge_dir or "shipped"},
+                  "world_model": portable_path(args.checkpoint, parts=3) if args.checkpoint else (
+                      f"preset {args.preset} (random init)" if args.preset else "shipped default"),
+                  "judges": portable_path(args.judge_dir) if args.judge_dir else "shipped"},
         "machine": {"load_avg_1m_end": os.getloadavg()[0], "cpus": os.cpu_count()},
         "wall_s": time.perf_counter() - t_start,
-        "command": " ".join([Path(sys.executable).name, "-m", "agents.evaluate", *(argv if argv is not None
-                                                                                     else sys.argv[1:])]),
+        "command": " ".join([Path(sys.executable).name, "-m", "agents.evaluate",
+                             *(portable_text(a, parts=3) for a in (argv if argv is not None else sys.argv[1:]))]),
     }
     spearman_dr = results["agreement"]["dream_vs_real"]["spearman"]
     results["goal"]["met"] = bool(np.isfinite(spearman_dr) and spearman_dr >= SPEARMAN_GOAL)
@@ -163,7 +165,7 @@ def main(argv: list[str] | None = None) -> dict:
     from agents.plots import scatter_png
 
     out = write_json_atomic(args.out, results)
-    plot = scatter_png(Path(args.out).with_suffix(".png"), specs, [r["real"] for r in rows],
+    plot = scatter_png(Path(args.out).with_suffix(".png"), [r["name"] for r in rows], [r["real"] for r in rows],
                        [r["dream"] for r in rows], f"{args.task}: dream vs real return, {args.episodes} episodes, "
                        f"Spearman {spearman_dr:.2f}")
     a = results["agreement"]["dream_vs_real"]

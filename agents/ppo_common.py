@@ -19,6 +19,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 
 from agents.common import arg, write_json_atomic
+from solaris_env.paths import portable_text
 
 
 @dataclass
@@ -125,6 +126,15 @@ def run_dir(args: PPOArgs, script: str) -> Path:
     return Path(args.out) if args.out is not None else Path("runs") / "agents" / f"{script}-{args.task}-s{args.seed}"
 
 
+def args_record(args: Any) -> dict:
+    """The run's arguments as written to ``args.json`` and the checkpoint sidecars: every absolute path made
+    portable (``solaris_env.paths``), so a record copied into ``benchmarks/results`` names no machine."""
+    def portable(v: Any) -> Any:
+        return portable_text(v) if isinstance(v, str) else [portable(x) for x in v] if isinstance(v, list) else v
+
+    return {k: portable(v) for k, v in dataclasses.asdict(args).items()}
+
+
 # ---------------------------------------------------------------------------------------------
 # The agent: new or resumed
 # ---------------------------------------------------------------------------------------------
@@ -177,7 +187,7 @@ def checkpoint_meta(args: PPOArgs, env_kind: str, obs_shape: tuple[int, ...], fr
     return {"algo": "ppo", "env": env_kind, "task": args.task, "seed": args.seed, "obs_shape": list(obs_shape),
             "frames_per_step": int(frames_per_step),
             "codec": args.codec().config(),
-            "args": dataclasses.asdict(args)}
+            "args": args_record(args)}
 
 
 def save_checkpoint(model: Any, path: Path, meta: dict) -> Path:

@@ -33,6 +33,7 @@ from agents.ppo_common import (
     CheckpointEvery,
     PPOArgs,
     VecResize,
+    args_record,
     checkpoint_meta,
     learn,
     make_ppo,
@@ -85,7 +86,7 @@ def main(argv: list[str] | None = None) -> None:
     torch.set_num_threads(args.torch_threads)
     out = run_dir(args, "ppo_dream")
     out.mkdir(parents=True, exist_ok=True)
-    write_json_atomic(out / "args.json", vars(args))
+    write_json_atomic(out / "args.json", args_record(args))
 
     # ---- world model and envs --------------------------------------------------------------
     t0 = time.perf_counter()

@@ -32,6 +32,7 @@ from agents.common import (
 from agents.ppo_common import (
     CheckpointEvery,
     PPOArgs,
+    args_record,
     checkpoint_meta,
     learn,
     make_ppo,
@@ -88,7 +89,7 @@ def main(argv: list[str] | None = None) -> None:
     torch.set_num_threads(args.torch_threads)
     out = run_dir(args, "ppo_real")
     out.mkdir(parents=True, exist_ok=True)
-    write_json_atomic(out / "args.json", vars(args))
+    write_json_atomic(out / "args.json", args_record(args))
 
     # ---- envs ------------------------------------------------------------------------------
     start_states = make_start_states(args.start_states, TRAIN_START_SEED, args.world, args.resolution)

@@ -32,6 +32,7 @@ from agents.common import (
 from agents.policies import make_policy
 from agents.rollouts import run_episode
 from agents.stats import summarize
+from solaris_env.paths import portable_text
 
 
 @dataclass
@@ -114,7 +115,7 @@ def main(argv: list[str] | None = None) -> dict:
         policy, t0 = make_policy(spec), time.perf_counter()
         returns = [run_episode(env, policy, s, args.seed + e, make_policy(args.partner)).env_return
                    for e, s in enumerate(starts)]
-        rows[role] = {"policy": spec, **summarize(returns, resamples=args.resamples),
+        rows[role] = {"policy": portable_text(spec, parts=3), **summarize(returns, resamples=args.resamples),
                       "wall_s": time.perf_counter() - t0}
         if role in metas:
             rows[role]["trained_steps"] = metas[role]["step"]
@@ -131,7 +132,7 @@ def main(argv: list[str] | None = None) -> dict:
         "machine": {"load_avg_1m_end": os.getloadavg()[0], "cpus": os.cpu_count()},
         "wall_s": time.perf_counter() - t_start,
         "command": " ".join([Path(sys.executable).name, "-m", "agents.transfer",
-                             *(argv if argv is not None else sys.argv[1:])]),
+                             *(portable_text(a, parts=3) for a in (argv if argv is not None else sys.argv[1:]))]),
     }
     out = write_json_atomic(args.out or RESULTS_DIR / f"transfer_{args.task}.json", results)
     print(f"transfer ratio (dream PPO - random) / (real PPO - random) = {ratio} ({note}); wrote {out}", flush=True)

@@ -17,7 +17,7 @@ with it negated (the opposite shift), and zeroed; ``action_gain`` = loss(negated
 model ignores the mouse). Variants: ``official`` (the reference design), ``gain10`` (``ActionConfig.mouse_input_gain``
 10), and, with the official action module, ``camera_warp`` (``DiTConfig.camera_warp`` set to the synthetic shift:
 one latent pixel per ``k * yaw`` units). Two more variants measured no gain and were deleted with their options
-(docs/history.md: the adaLN action path, +0.7 %, and camera RoPE). Writes
+(docs/history.md: the adaLN action path, +0.9 %, and camera RoPE, +0.7 %). Writes
 ``benchmarks/results/action_learnability.json``.
 """
 

@@ -24,6 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
+from solaris_env.paths import portable_path
+
 RESULTS = Path(__file__).parent / "results" / "action_response.json"
 PROBES = ("yaw", "forward")
 
@@ -128,7 +130,8 @@ def run(checkpoint: str | None, preset: str | None, episodes: int, steps: int, y
                        "frames_per_step": model.frames_per_step, "frame_size": [height, width], "world": world,
                        "start_seed": start_seed, "seed": seed,
                        "action_guidance": model.config.sampler.action_guidance,
-                       "world_model": checkpoint or (f"preset {preset} (random init)" if preset else "shipped default")}
+                       "world_model": portable_path(checkpoint, parts=3) if checkpoint else (
+                           f"preset {preset} (random init)" if preset else "shipped default")}
     return result
 
 

@@ -3,7 +3,7 @@
     .venv/bin/python -m benchmarks.dream_fidelity                                  # shipped model, ~10 min
     .venv/bin/python -m benchmarks.dream_fidelity --model default --model default:no-refiner
     .venv/bin/python -m benchmarks.dream_fidelity --quick --programs forward yaw_right_15 random
-    .venv/bin/python -m benchmarks.dream_fidelity --model runs/x/refiner/model --out /tmp/x.json
+    .venv/bin/python -m benchmarks.dream_fidelity --model runs/x/refiner/model --out runs/x/fidelity.json
 
 From each engine start state (``make_states``: fresh seeds from 700000, every flat surface and normal
 worlds, the partner in view or the learner turned away) the real engine (``RealParallelEnv`` with
@@ -50,6 +50,8 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+
+from solaris_env.paths import portable_path
 
 REPO = Path(__file__).resolve().parent.parent
 RESULTS = Path(__file__).parent / "results" / "dream_fidelity.json"
@@ -752,11 +754,7 @@ def model_label(spec: str) -> str:
     elif base.startswith("preset:"):
         name = f"preset {base.split(':', 1)[1]} (random init)"
     else:
-        path = Path(base).resolve()
-        try:
-            name = str(path.relative_to(REPO))
-        except ValueError:
-            name = "/".join(path.parts[-3:])  # outside the repository: its last components only
+        name = portable_path(base, parts=3)  # outside the repository: its last three components only
     return name + (", refiner off" if off else "")
 
 

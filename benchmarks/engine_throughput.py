@@ -21,7 +21,7 @@ Targets: >= 500 frames/s batched at 64x64; collection >= 10x real time.
     .venv/bin/python benchmarks/engine_throughput.py --backend minecraft [--quick]   # ~4 min (quick ~1 min)
 
 writes ``benchmarks/results/engine_throughput_minecraft.json`` instead (needs ``solaris-engine
-setup-minecraft``; one bot pair at a time): ``env`` = ``RealParallelEnv(backend="minecraft")`` at 64 and
+setup-minecraft``; one bot pair at a time): ``env`` = ``MinecraftParallelEnv`` at 64 and
 128, and at 64 with ticks_per_step=4 (env steps/s, frames/s, CPU cores per pair = CPU seconds of Node +
 server + Xvfb over wall time, Python's CPU, and how many steps kept real time) and ``recorder`` =
 ``record.js`` rotationEval episodes at 128x128.
@@ -124,17 +124,16 @@ MC_ENV_CONFIGS = ((64, 1), (128, 1), (64, 4))  # (resolution, ticks_per_step); -
 
 
 def minecraft_env_rate(resolution: int, ticks_per_step: int, ticks: int) -> dict:
-    """``RealParallelEnv(backend="minecraft")`` (one bot pair) stepped for ``ticks`` game ticks by a random
+    """``MinecraftParallelEnv`` (one bot pair) stepped for ``ticks`` game ticks by a random
     policy answering at once: env steps/s, frames/s (both players), the step-timing counters, and CPU
     cores used (process CPU time over wall time) by the bridge (Node: both bots + views), the server and
     Xvfb together, and by this Python process (frame resampling, ground truth, the protocol)."""
     import resource
 
-    import solaris_env
+    from solaris_env.minecraft_env import MinecraftParallelEnv
 
     steps = ticks // ticks_per_step
-    env = solaris_env.RealParallelEnv(backend="minecraft", resolution=resolution, max_steps=steps + 1,
-                                      ticks_per_step=ticks_per_step)
+    env = MinecraftParallelEnv(resolution=resolution, max_steps=steps + 1, ticks_per_step=ticks_per_step)
     try:
         t0 = time.perf_counter()
         env.reset(seed=0)
@@ -212,7 +211,7 @@ def minecraft_rate(out: Path, quick: bool) -> None:
         "env": env_rows,
         "recorder": rec_rows,
         "notes": {
-            "env": "RealParallelEnv(backend='minecraft'), random actions; wall time of the timed steps only "
+            "env": "MinecraftParallelEnv, random actions; wall time of the timed steps only "
                    "(after start-up, the first reset and one step); real time caps it at 20 / ticks_per_step "
                    "steps/s and 40 frames/s per pair; cpu_cores_pair = CPU seconds of env_bridge (Node) + server "
                    "+ Xvfb / wall",

@@ -37,6 +37,8 @@ from pathlib import Path
 
 import numpy as np
 
+from solaris_env.paths import portable_text
+
 RESULTS = Path(__file__).parent / "results" / "env_throughput.json"
 WORLDS = (4, 16, 64)
 
@@ -174,7 +176,7 @@ def main(argv: list[str] | None = None) -> None:
               f"p99 {row['step_latency_ms']['p99']:.1f} ms, peak RSS {row['peak_rss_mb']:.0f} MB", flush=True)
     from benchmarks.machine import machine_info
 
-    result = {"model": args.model, "note": "2-core CPU shared with other jobs: see the load averages",
+    result = {"model": portable_text(args.model, parts=3), "note": "2-core CPU shared with other jobs: see the load averages",
               "rows": rows, "machine": machine_info(load_before)}
     args.out.parent.mkdir(parents=True, exist_ok=True)
     tmp = args.out.with_suffix(".json.tmp")

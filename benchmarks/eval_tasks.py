@@ -480,6 +480,7 @@ def main(argv: list[str] | None = None) -> int:
 
         fid_features = InceptionFeatures.load(args.inception_weights)
     from benchmarks.machine import machine_info, write_result
+    from solaris_env.paths import portable_path
     from solaris_env.world_model.world_model import WorldModel
 
     load_before = os.getloadavg()
@@ -496,7 +497,9 @@ def main(argv: list[str] | None = None) -> int:
                    "activations, 192-d) over all generated frames of both players vs the GT frames they show; "
                    "NOT FID", **fid,
         "std": "population std over trials (sampling seeds); 0 for the deterministic rows",
-        "model": args.model, "concat_checkpoint": args.concat_checkpoint, "data": args.data,
+        "model": portable_path(args.model, parts=3),
+        "concat_checkpoint": args.concat_checkpoint and portable_path(args.concat_checkpoint, parts=3),
+        "data": portable_path(args.data),
         "data_seed": args.data_seed, **result, "machine": machine_info(load_before),
     }
     print(result["table"])

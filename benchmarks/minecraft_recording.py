@@ -76,8 +76,8 @@ def record_type(session, out: Path, episode_type: str, episode: int, size: int) 
 
 
 def main(argv=None) -> int:
-    from solaris_env.engine.minecraft import setup_problem
     from solaris_env.engine.minecraft.collect import EVAL_TYPES, TRAINING_TYPES, MinecraftSession
+    from solaris_env.engine.minecraft.install import setup_problem
 
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--types", nargs="+", default=list(TRAINING_TYPES) + list(EVAL_TYPES),

@@ -28,6 +28,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from solaris_env.paths import portable_path, portable_text
+
 RESULTS = Path(__file__).parent / "results" / "training_speed.json"
 STAGES = ("vae", "vae-decoder", "sp", "mp-bidirectional", "mp-causal", "self-forcing")  # training.train.STAGES
 
@@ -64,6 +66,7 @@ def measure(preset: str, steps: int, episodes: int, workdir: Path) -> tuple[dict
     """Collect ``episodes`` with the engine and run every stage for ``steps`` updates in ``workdir``; each
     stage's wall time is kept (its updates plus its fixed costs: compilation, latent cache, evaluations)."""
     from training import cli
+    from training.collect import collect_if_missing
     from training.train import load_stage_config
 
     cfg = load_stage_config(preset)
@@ -77,7 +80,7 @@ def measure(preset: str, steps: int, episodes: int, workdir: Path) -> tuple[dict
             cfg[stage].update(eval_clips=4, stats_clips=8)
     data, out = workdir / "data", workdir / "run"
     t0 = time.perf_counter()
-    cli.collect_if_missing(data, preset, cfg["collect"])
+    collect_if_missing(data, preset, cfg["collect"])
     walls = {"collect": time.perf_counter() - t0}
     args = argparse.Namespace(preset=preset, config=None, data=str(data), out=str(out), seed=None, no_resume=False,
                                fsdp=False, steps=None)
@@ -127,7 +130,7 @@ def main(argv: list[str] | None = None) -> int:
         run = Path(args.run)
         cfg_path = run / "train_config.json"
         stage_cfg = json.loads(cfg_path.read_text()) if cfg_path.is_file() else None
-        stages, extra = summarise_run(run, stage_cfg), {"mode": "summarised run", "run": str(run)}
+        stages, extra = summarise_run(run, stage_cfg), {"mode": "summarised run", "run": portable_path(run)}
     else:
         with tempfile.TemporaryDirectory(dir=args.workdir) as tmp:
             stages, extra = measure(args.preset, args.steps, args.episodes, Path(tmp))
@@ -140,8 +143,8 @@ def main(argv: list[str] | None = None) -> int:
     from benchmarks.machine import machine_info
     from training.samples import write_json
 
-    result = {"benchmark": "training_speed", "preset": args.preset, **extra, "note": args.note, "stages": stages,
-              "machine": machine_info(load_before)}
+    result = {"benchmark": "training_speed", "preset": args.preset, **extra,
+              "note": args.note and portable_text(args.note), "stages": stages, "machine": machine_info(load_before)}
     print(f"{'stage':<18}{'steps/s':>10}{'tokens/s':>12}{'batch':>7}{'frames':>8}")
     for stage, s in stages.items():
         print(f"{stage:<18}{s['steps_per_s']:>10.3f}{s['tokens_per_s']:>12.0f}{s.get('batch_size', '-'):>7}"

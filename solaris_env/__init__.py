@@ -18,6 +18,7 @@ __version__ = "0.1.0"
 _LAZY = {
     "RealParallelEnv": "solaris_env.real_env",
     "EngineState": "solaris_env.real_env",
+    "make_real_env": "solaris_env.real_backends",
     "DreamParallelEnv": "solaris_env.dream_env",
     "parallel_env": "solaris_env.dream_env",
     "DreamVectorEnv": "solaris_env.vector_env",

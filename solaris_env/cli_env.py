@@ -52,22 +52,11 @@ def _make_env(args, max_steps: int, render_mode: str | None = None):
 
         return DreamParallelEnv(checkpoint=args.checkpoint, preset=args.preset, num_players=args.players,
                                 max_steps=max_steps, task=args.task, render_mode=render_mode)
-    from solaris_env.real_env import RealParallelEnv
+    from solaris_env.real_backends import make_real_env
 
     world = args.world or ("flat" if args.backend == "minecraft" else "mixed")
-    return RealParallelEnv(num_players=args.players, world=world, resolution=args.resolution, max_steps=max_steps,
-                           task=args.task, render_mode=render_mode, backend=args.backend)
-
-
-def _opponents(env, policy: str, seed: int) -> dict:
-    import numpy as np
-
-    from solaris_env.wrappers.opponents import make_opponent
-
-    out = {a: make_opponent(policy) for a in env.possible_agents}
-    for a, s in zip(env.possible_agents, np.random.default_rng(seed).integers(2**31 - 1, size=len(out))):
-        out[a].reset(env, a, int(s))
-    return out
+    return make_real_env(backend=args.backend, num_players=args.players, world=world, resolution=args.resolution,
+                         max_steps=max_steps, task=args.task, render_mode=render_mode)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -78,7 +67,7 @@ def _opponents(env, policy: str, seed: int) -> dict:
 def cmd_info(args) -> int:
     import solaris_env
     from solaris_env.dream_env import DEFAULT_CHECKPOINT
-    from solaris_env.start_scenes import SCENES_PATH, _bundle
+    from solaris_env.start_scenes import SCENES_PATH, load_bundle
     from solaris_env.tasks import TASKS
     from solaris_env.world_model.config import PRESETS
     from solaris_env.wrappers.opponents import OPPONENTS
@@ -91,7 +80,7 @@ def cmd_info(args) -> int:
     print(f"default model : {DEFAULT_CHECKPOINT} ({shipped})")
     print(f"presets       : {', '.join(sorted(PRESETS))} (random-init)")
     if SCENES_PATH.exists():
-        b = _bundle(str(SCENES_PATH))
+        b = load_bundle(str(SCENES_PATH))
         print(f"start scenes  : {len(b['seeds'])} per player count {b['player_counts'].tolist()} at "
               f"{b['resolutions'].tolist()} px ({SCENES_PATH.stat().st_size / 1e6:.2f} MB)")
     else:
@@ -106,6 +95,7 @@ def cmd_rollout(args) -> int:
     import numpy as np
 
     from solaris_env.env_common import side_by_side
+    from solaris_env.wrappers.opponents import make_opponents
     from solaris_env.wrappers.video import Mp4Writer
 
     check_output_file(args.out, ".mp4", "--out")  # before the (slow) env: a bad path is a one-line error at once
@@ -119,7 +109,7 @@ def cmd_rollout(args) -> int:
     writer = Mp4Writer(args.out)
     start = time.perf_counter()
     obs, _ = env.reset(seed=args.seed)
-    policies = _opponents(env.unwrapped, args.policy, args.seed)
+    policies = make_opponents(env.unwrapped, args.policy, args.seed)
     returns = dict.fromkeys(env.possible_agents, 0.0)
 
     def write():

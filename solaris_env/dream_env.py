@@ -29,13 +29,8 @@ from solaris_env.env_common import (
     episode_rng,
 )
 from solaris_env.spaces import (
-    CAMERA_KEY,
-    CAMERA_X_INDEX,
-    CAMERA_Y_INDEX,
-    MODEL_INDEX,
-    ONCE_KEYS,
+    ONCE_KEYS as ONCE_KEYS,  # re-exported: keys sent on the first tick of a step only (spaces.step_ticks)
     _model_vector,
-    camera_linear,
     make_action_space,
     noop,
     step_ticks,
@@ -45,10 +40,6 @@ from solaris_env.tasks import make_task
 
 ENGINE_TICKS_PER_SECOND = 20
 DEFAULT_CHECKPOINT = Path(__file__).parent / "assets" / "default"
-
-# ONCE_KEYS (from ``spaces``, re-exported here) act once per key press: in a step of k ticks they are sent on the
-# first tick only.
-_ONCE_INDICES = np.array([MODEL_INDEX[k] for k in ONCE_KEYS])  # their dims of the model vector
 
 
 # ---------------------------------------------------------------------------------------------
@@ -61,19 +52,15 @@ def expand_action(action: Any, k: int, pending_deg: Any = None,
     """One env step's action -> the k per-tick model vectors (k, 25) the model consumes, and the camera turn
     carried to the next step.
 
-    The engine's rule (``spaces.step_ticks``, also ``RealParallelEnv(ticks_per_step=k)``): tick 0 carries the
-    whole action; ticks 1..k-1 keep the held movement keys but zero the once-keys (``ONCE_KEYS``); the camera turn
-    (plus ``pending_deg``, what earlier steps left) is spread over the ticks at up to ``CAMERA_TICK_LIMIT_DEG`` =
-    8.59 deg per tick and axis, the range of the model's training data, and what does not fit in k ticks is
-    returned as the new pending turn. So ``camera_linear``'s +-20 deg clip never acts on an env action.
+    The k per-tick env actions are the engine's (``spaces.step_ticks``, also ``RealParallelEnv(ticks_per_step=k)``):
+    tick 0 carries the whole action; ticks 1..k-1 keep the held movement keys but release the once-keys
+    (``ONCE_KEYS``); the camera turn (plus ``pending_deg``, what earlier steps left) is spread over the ticks at up
+    to ``CAMERA_TICK_LIMIT_DEG`` = 8.59 deg per tick and axis, the range of the model's training data, and what
+    does not fit in k ticks is returned as the new pending turn. Each tick becomes its model vector
+    (``env_action_to_model_vector``), so ``camera_linear``'s +-20 deg clip never acts on an env action.
     """
     ticks, pending = step_ticks(action, k, pending_deg, agent)
-    vec_k25 = np.repeat(_model_vector(ticks[0])[None], k, axis=0)  # tick 0's keys (ticks are validated)
-    vec_k25[1:, _ONCE_INDICES] = 0.0
-    turns_k2 = np.stack([tick[CAMERA_KEY] for tick in ticks]).astype(np.float64)  # [dpitch, dyaw] deg, MineRL
-    vec_k25[:, CAMERA_X_INDEX] = 0.0 - turns_k2[:, 1]  # Mineflayer signs, as env_action_to_model_vector
-    vec_k25[:, CAMERA_Y_INDEX] = 0.0 - turns_k2[:, 0]
-    return camera_linear(vec_k25), pending  # the per-tick degrees in model units (never clipped: <= 8.59 deg)
+    return np.stack([_model_vector(tick) for tick in ticks]), pending  # ticks are validated
 
 
 def world_actions(actions: Any, agents: list[str], live: list[str], k: int,
@@ -268,11 +255,11 @@ def _read_only(array: np.ndarray) -> np.ndarray:
 
 def parallel_env(kind: str = "dream", **kwargs) -> ParallelEnv:
     """Build an env by kind: ``"dream"`` -> ``DreamParallelEnv(**kwargs)``,
-    ``"real"`` -> ``RealParallelEnv(**kwargs)``."""
+    ``"real"`` -> ``real_backends.make_real_env(**kwargs)`` (``backend="voxel"`` by default, or ``"minecraft"``)."""
     if kind == "dream":
         return DreamParallelEnv(**kwargs)
     if kind == "real":
-        from solaris_env.real_env import RealParallelEnv
+        from solaris_env.real_backends import make_real_env
 
-        return RealParallelEnv(**kwargs)
+        return make_real_env(**kwargs)
     raise ValueError(f"kind must be 'dream' or 'real', got {kind!r}")

@@ -1,4 +1,5 @@
-"""``RealParallelEnv(backend="minecraft")``: the real env on real Minecraft 1.20.1, stepped in real time.
+"""``MinecraftParallelEnv``: the real env on real Minecraft 1.20.1, stepped in real time (the ``"minecraft"``
+backend of ``real_backends.make_real_env``).
 
 The players are mineflayer bots on a local flying-squid server; their first-person views are rendered by
 prismarine-viewer in the bridge process (``engine/minecraft/env_bridge.js``), which Python drives over a
@@ -16,6 +17,7 @@ import numpy as np
 
 from solaris_env.engine.blocks import BY_NAME
 from solaris_env.engine.minecraft.collect import frames_from_rgba, render_size
+from solaris_env.engine.minecraft.install import setup_problem
 from solaris_env.engine.minecraft.records import (
     CONTROL_KEYS,
     EYE_HEIGHT,
@@ -81,7 +83,7 @@ def screen_of(pose: dict, other_feet: list[float] | None, height: int, width: in
 
 
 class MinecraftParallelEnv(RealParallelEnv):
-    """Real Minecraft (1.20.1) with every player an agent; built by ``RealParallelEnv(backend="minecraft")``.
+    """Real Minecraft (1.20.1) with every player an agent; also built by ``make_real_env(backend="minecraft")``.
 
     Needs the backend installed (``solaris-engine setup-minecraft``); the first ``reset`` starts Xvfb, a
     flying-squid server on 127.0.0.1 and the bridge (one bot and one rendered view per player), ~10-15 s
@@ -147,14 +149,12 @@ class MinecraftParallelEnv(RealParallelEnv):
     """
 
     metadata: ClassVar[dict] = {**RealParallelEnv.metadata, "name": "solaris_real_minecraft_v0"}
+    backend: ClassVar[str] = "minecraft"
 
     def __init__(self, num_players: int = 2, world: str = "flat", resolution: int | tuple[int, int] = 64,
                  max_steps: int = 1000, render_mode: str | None = None,
                  spawn_distance: tuple[float, float] = (6.0, 10.0), view_distance: float = 48.0,
-                 hud: bool = False, task=None, ticks_per_step: int = 1, backend: str = "minecraft",
-                 server_seed: int = 42):
-        if backend != "minecraft":
-            raise ValueError(f"backend: MinecraftParallelEnv is the 'minecraft' backend, got {backend!r}")
+                 hud: bool = False, task=None, ticks_per_step: int = 1, server_seed: int = 42):
         if world != "flat":
             raise ValueError(f"world: the minecraft backend has only the server's superflat world ('flat'), "
                              f"got {world!r}")
@@ -163,12 +163,9 @@ class MinecraftParallelEnv(RealParallelEnv):
         super().__init__(num_players=num_players, world=world, resolution=resolution, max_steps=max_steps,
                          render_mode=render_mode, spawn_distance=spawn_distance, view_distance=view_distance,
                          hud=False, task=task, ticks_per_step=ticks_per_step)
-        from solaris_env.engine.minecraft import setup_problem
-
         problem = setup_problem()
         if problem:
             raise RuntimeError(f"the Minecraft backend is not set up: {problem}")
-        self.backend = "minecraft"
         self.server_seed = server_seed
         self.view_chunks = max(2, math.ceil(view_distance / CHUNK))
         self.bridge = None  # started by the first reset

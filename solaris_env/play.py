@@ -49,6 +49,7 @@ from solaris_env.spaces import (
     VPT_CAMERA_DEG_PER_PIXEL,
     noop,
 )
+from solaris_env.wrappers.opponents import make_opponents
 
 DEG_PER_PIXEL = VPT_CAMERA_DEG_PER_PIXEL  # 360 / 2400 = 0.15 deg per pixel of mouse movement
 MAX_TURN_DEG = CAMERA_CLIP_DEG  # PlayControls' default per step and axis; the rest waits for the next steps
@@ -175,12 +176,10 @@ class PlaySession:
             return self.driver
 
     def reset(self) -> None:
-        from solaris_env.cli_env import _opponents
-
         with self.lock:
             self.episode += 1
             self.obs, _ = self.env.reset(seed=self.seed + self.episode)
-            self.others = _opponents(self.env.unwrapped, self.policy, self.seed + self.episode)
+            self.others = make_opponents(self.env.unwrapped, self.policy, self.seed + self.episode)
             self.steps, self.returns = 0, 0.0
 
     @property

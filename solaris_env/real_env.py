@@ -39,7 +39,6 @@ from solaris_env.spaces import make_action_space, noop, step_ticks, validate_act
 from solaris_env.tasks import make_task
 
 WORLD_CHOICES = ("flat", "normal", "mixed")
-BACKENDS = ("voxel", "minecraft")  # the voxel engine; real Minecraft 1.20.1 (``minecraft_env.py``)
 DEFAULT_VIEW_DISTANCE = 48.0  # blocks, as the recorded training data
 
 
@@ -76,12 +75,6 @@ class EngineState:
     @property
     def tick(self) -> int:
         return self._game.tick
-
-
-def check_backend(backend: Any) -> None:
-    """``backend`` must be one of ``BACKENDS``."""
-    if backend not in BACKENDS:
-        raise ValueError(f"backend must be one of {list(BACKENDS)}, got {backend!r}")
 
 
 def check_engine_state(state: Any, agents: list[str]) -> EngineState:
@@ -140,7 +133,9 @@ def screen_position(avatar_id_HW: np.ndarray, player: int) -> dict:
 
 class RealParallelEnv(PlayerViewsEnv, ParallelEnv):
     """The voxel engine with every player an agent. One env step is ``ticks_per_step`` 20 Hz engine ticks
-    (default 1).
+    (default 1). The real env's other backend, real Minecraft stepped in real time, is
+    ``solaris_env.minecraft_env.MinecraftParallelEnv``; ``solaris_env.real_backends.make_real_env(backend=...)``
+    builds either by name.
 
     Args:
         num_players: number of players (1..8); agents are named Alpha, Bravo, Charlie, ...
@@ -154,9 +149,6 @@ class RealParallelEnv(PlayerViewsEnv, ParallelEnv):
         spawn_distance: (min, max) blocks between the first two players at reset.
         view_distance: render distance in blocks (fog ends there).
         hud: draw the hotbar and crosshair.
-        backend: ``"voxel"`` (this engine, the default) or ``"minecraft"``: real Minecraft stepped in real time
-            (``solaris_env.minecraft_env.MinecraftParallelEnv``, returned by this constructor; its docstring
-            lists what differs). Other values raise ValueError.
         ticks_per_step: engine ticks per env step (k). With k > 1 a step plays like a dream env step of k
             frames: the first tick gets the whole action, ticks 2..k keep the movement keys held but release
             the once-keys, and the camera turn is spread over the ticks (below; ``spaces.step_ticks``); every tick is rendered
@@ -187,22 +179,12 @@ class RealParallelEnv(PlayerViewsEnv, ParallelEnv):
 
     metadata: ClassVar[dict] = {"name": "solaris_real_v0", "render_modes": ["rgb_array", "human"], "render_fps": 20,
                 "is_parallelizable": True}
-
-    def __new__(cls, *args, backend: str = "voxel", **kwargs):
-        check_backend(backend)
-        if backend == "minecraft" and cls is RealParallelEnv:
-            from solaris_env.minecraft_env import MinecraftParallelEnv
-
-            cls = MinecraftParallelEnv  # Python then runs MinecraftParallelEnv.__init__ with the same arguments
-        return super().__new__(cls)
+    backend: ClassVar[str] = "voxel"  # its name in ``real_backends.BACKENDS``
 
     def __init__(self, num_players: int = 2, world: str = "flat", resolution: int | tuple[int, int] = 64,
                  max_steps: int = 1000, render_mode: str | None = None,
                  spawn_distance: tuple[float, float] = (6.0, 10.0), view_distance: float = DEFAULT_VIEW_DISTANCE,
-                 hud: bool = True, task=None, ticks_per_step: int = 1, backend: str = "voxel"):
-        if backend != "voxel":
-            raise ValueError(f"backend: this class runs the 'voxel' engine, got {backend!r}; "
-                             f"use RealParallelEnv(backend={backend!r})")
+                 hud: bool = True, task=None, ticks_per_step: int = 1):
         if not 1 <= num_players <= len(PLAYER_NAMES):
             raise ValueError(f"num_players must be in [1, {len(PLAYER_NAMES)}], got {num_players}")
         if world not in WORLD_CHOICES:

@@ -129,9 +129,11 @@ def noop() -> dict[str, Any]:
 
 
 # Keys that act once per key press in Minecraft: in an env step of k engine ticks (the dream env's
-# k = frames_per_step, the real env's ``ticks_per_step``) they are sent on the first tick only. Movement keys
-# (forward, back, left, right, jump, sneak, sprint) are held for all k ticks.
-ONCE_KEYS = ("attack", "use", "drop", "inventory", "ESC", "swapHands", "pickItem") + HOTBAR_KEYS
+# k = frames_per_step, the real env's ``ticks_per_step``) they are sent on the first tick only. The movement
+# keys (forward, back, left, right, jump, sneak, sprint) and ``attack`` are held for all k ticks: digging needs
+# attack on every tick (a tick without it resets the block's progress, as in the game and the recorded bots),
+# and a held attack on a player swings whenever the attack cooldown allows (docs/actions.md §5).
+ONCE_KEYS = ("use", "drop", "inventory", "ESC", "swapHands", "pickItem") + HOTBAR_KEYS
 
 
 def step_ticks(action: Mapping[str, Any], k: int, pending_deg: Any = None,
@@ -171,16 +173,6 @@ def step_ticks(action: Mapping[str, Any], k: int, pending_deg: Any = None,
     for t, tick in enumerate(ticks):
         tick[CAMERA_KEY] = turns[t]
     return ticks, np.array(rest)
-
-
-def tick_actions(action: Mapping[str, Any], k: int) -> list[dict[str, Any]]:
-    """``step_ticks`` with nothing pending, for a turn that fits in k ticks (at most k * ``CAMERA_TICK_LIMIT_DEG``
-    per axis); a larger one raises ValueError (use ``step_ticks`` and carry its remainder: nothing is dropped)."""
-    ticks, pending = step_ticks(action, k)
-    if np.any(pending != 0.0):
-        raise ValueError(f"action key {CAMERA_KEY!r}: {np.asarray(action[CAMERA_KEY]).tolist()} deg does not fit in "
-                         f"{k} ticks of at most {CAMERA_TICK_LIMIT_DEG:.3f} deg; use step_ticks, which carries the rest")
-    return ticks
 
 
 def _where(agent: str | None) -> str:

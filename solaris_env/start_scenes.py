@@ -92,7 +92,8 @@ def build(path: Path = SCENES_PATH, scenes: int = SCENES_PER_SET,
 
 
 @functools.lru_cache(maxsize=4)
-def _bundle(path: str) -> dict[str, np.ndarray]:
+def load_bundle(path: str) -> dict[str, np.ndarray]:
+    """The bundled start scenes file as arrays (cached per path)."""
     if not Path(path).exists():
         raise FileNotFoundError(f"the bundled start scenes {path} are missing; build them with "
                                 "`python -m solaris_env.start_scenes`")
@@ -140,7 +141,7 @@ class StartScenes:
 
 def load_start_scenes(num_players: int, height: int, width: int, path: Path = SCENES_PATH) -> StartScenes:
     """The bundled scenes for ``num_players`` at (height, width); resized from the nearest larger bundled size."""
-    bundle = _bundle(str(path))
+    bundle = load_bundle(str(path))
     counts = [int(p) for p in bundle["player_counts"]]
     if num_players not in counts:
         raise ValueError(f"no bundled start scenes for num_players={num_players} (bundled: {counts}); "

@@ -176,6 +176,9 @@ def test_expand_action_once_keys_on_the_first_tick_and_the_camera_spread_within_
 def test_factory_and_constructor_checks(model):
     real = solaris_env.parallel_env("real", resolution=36)
     assert isinstance(real, RealParallelEnv)
+    assert isinstance(solaris_env.parallel_env("real", backend="voxel", resolution=36), RealParallelEnv)
+    with pytest.raises(ValueError, match="backend must be one of"):
+        solaris_env.parallel_env("real", backend="unreal")
     dream = solaris_env.parallel_env("dream", preset="test")
     assert isinstance(dream, DreamParallelEnv) and dream.possible_agents == ["Alpha", "Bravo"]
     assert dream.observation_space("Alpha").shape == (32, 32, 3)

@@ -10,8 +10,8 @@ import pytest
 
 from solaris_env.engine.blocks import Block
 from solaris_env.engine.bots import registry
-from solaris_env.engine.bots import training_episodes as te
 from solaris_env.engine.bots.runner import PRE_ROLL_TICKS, EpisodeConfig, run_episode
+from solaris_env.engine.bots.training_episodes import building, mining
 
 WORLD_KINDS = ("flat", "normal")
 MAX_CAMERA_RAD = 0.15 + 1e-5  # per-tick rotation cap (3 rad/s); float32 camera round trip
@@ -146,14 +146,16 @@ def test_mine_ends_underground_near_each_other():
     out = _run("mine", "flat")
     feet = out.trace.feet_TP3
     assert np.all(feet[-1, :, 1] < feet[0, :, 1] - 1.0)  # both dug below their spawn
-    assert np.linalg.norm(feet[-1, 0] - feet[-1, 1]) <= 2 * te.MINE_RADIUS + 0.5
+    assert np.linalg.norm(feet[-1, 0] - feet[-1, 1]) <= 2 * mining.MINE_RADIUS + 0.5
 
 
 def test_build_house_has_its_block_counts_on_flat_ground():
     placed = _events(_run("buildHouse", "flat"), "placed")
-    counts = {b: sum(p[3] == b for p in placed) for b in (te.HOUSE_FLOOR, te.HOUSE_WALL, te.HOUSE_ROOF)}
-    assert counts == {te.HOUSE_FLOOR: len(te._house_floor()), te.HOUSE_WALL: len(te._house_walls()),
-                      te.HOUSE_ROOF: len(te._house_roof())}
+    counts = {b: sum(p[3] == b for p in placed) for b in (building.HOUSE_FLOOR, building.HOUSE_WALL,
+                                                          building.HOUSE_ROOF)}
+    assert counts == {building.HOUSE_FLOOR: len(building._house_floor()),
+                      building.HOUSE_WALL: len(building._house_walls()),
+                      building.HOUSE_ROOF: len(building._house_roof())}
 
 
 def test_place_and_mine_miner_digs_what_the_builder_placed():
@@ -164,7 +166,7 @@ def test_place_and_mine_miner_digs_what_the_builder_placed():
 
 
 def test_abort_sets_error_flags_for_both_bots(monkeypatch):
-    monkeypatch.setattr(te, "_find_site", lambda *args: None)  # placeAndMine: "no location" abort
+    monkeypatch.setattr(mining, "_find_site", lambda *args: None)  # placeAndMine: "no location" abort
     out = run_episode(EpisodeConfig(seed=SEED, world_kind="flat", episode_type="placeAndMine"))
     assert out.aborted and "no location" in out.abort_reason
     assert any(info["encountered_error"] for info in out.infos)

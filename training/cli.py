@@ -22,6 +22,7 @@ import sys
 from pathlib import Path
 
 from solaris_env.cli_support import add_debug_flag, run_command
+from training.collect import collect_if_missing
 
 STAGE_COMMANDS = ("vae", "vae-decoder", "sp", "mp-bidirectional", "mp-causal", "self-forcing",
                   "refiner")  # ``all``, in order
@@ -34,60 +35,14 @@ def _stage_cfg(args) -> dict:
     return load_stage_config(args.preset, args.config)
 
 
-def collect_if_missing(data: Path, preset_name: str, collect_cfg: dict) -> None:
-    """Record the training data with the engine unless ``data/duet/train`` already holds episodes
-    (a collect is itself resumable: finished episodes are skipped). Optional ``collect_cfg`` keys:
-    ``instances`` (the flat surface is instance mod 5, so >= 10 covers all five with ``world: mixed``) and
-    ``types`` (a list of episode types)."""
-    from solaris_env.engine import cli as engine_cli
-    from solaris_env.world_model.config import preset
-
-    argv = collect_argv(data, preset(preset_name), collect_cfg)
-    rc = engine_cli.main(argv)
-    if rc:
-        raise SystemExit(f"solaris-engine {' '.join(argv)} failed with exit code {rc}")
-
-
-def collect_argv(data: Path, cfg, collect_cfg: dict) -> list[str]:
-    """The ``solaris-engine`` arguments of the ``collect`` block of a stage config."""
-    unknown = set(collect_cfg) - {"episodes", "world", "seed", "test_fraction", "instances", "types"}
-    if unknown:
-        raise ValueError(f"collect config: unknown keys {sorted(unknown)}; expected episodes, world, seed, "
-                         f"test_fraction and optionally instances, types")
-    argv = ["collect", "--out", str(data), "--episodes", str(collect_cfg["episodes"]), "--world", collect_cfg["world"],
-            "--resolution", f"{cfg.frame_width}x{cfg.frame_height}", "--seed", str(collect_cfg["seed"]),
-            "--test-fraction", str(collect_cfg["test_fraction"])]
-    if "instances" in collect_cfg:
-        argv += ["--instances", str(int(collect_cfg["instances"]))]
-    if "types" in collect_cfg:
-        argv += ["--types", *map(str, collect_cfg["types"])]
-    return argv
-
-
 def run_stage(stage: str, args, stage_cfg: dict, deadline: float | None = None) -> Path:
+    from training.train import call_stage
+
     seed = stage_cfg.get("seed", 0) if args.seed is None else args.seed
     kw = {"seed": seed, "steps": args.steps, "resume": not args.no_resume, "fsdp": args.fsdp}
     if deadline is not None:  # an elastic stage (ELASTIC_STAGES)
         kw["deadline"] = deadline
     return call_stage(stage, args.out, args.data, stage_cfg, **kw)
-
-
-def call_stage(stage: str, out, data, stage_cfg: dict, **kw) -> Path:
-    """Run ``stage``'s function of ``training.train`` on its block of ``stage_cfg`` with keyword arguments
-    ``kw`` (seed, steps, resume, fsdp, deadline, on_model: see the functions)."""
-    from training import train
-
-    if stage == "vae":
-        return train.train_vae(out, data, stage_cfg["preset"], stage_cfg["vae"], **kw)
-    if stage == "vae-decoder":
-        return train.train_vae_decoder(out, data, stage_cfg["preset"], stage_cfg["vae-decoder"], **kw)
-    if stage in train.FLOW_STAGES:
-        return train.train_flow(stage, out, data, stage_cfg[stage], **kw)
-    if stage == "self-forcing":
-        return train.train_self_forcing(out, data, stage_cfg["self-forcing"], **kw)
-    if stage == "refiner":
-        return train.train_refiner(out, data, stage_cfg["refiner"], **kw)
-    raise ValueError(f"unknown stage {stage!r}")
 
 
 def cmd_stage(args) -> int:

@@ -636,7 +636,7 @@ class MultiplayerSegmentSampler(_ResumableSampler):
 
     def add_episode(self, episode_id: int) -> bool:
         """Make a valid episode of the dataset a candidate if it is this rank's and holds a segment
-        (``training.sprint`` adds the episodes a growing dataset found); returns whether it was added."""
+        (``training.growing_data`` adds the episodes a growing dataset found); returns whether it was added."""
         if episode_id % self.num_ranks != self.rank:
             return False
         window = self._window(*self.dataset.render_times(episode_id))

@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from solaris_env.paths import portable_path
 from training import data as D
 from training.samples import (
     contact_sheet,
@@ -63,7 +64,8 @@ def evaluate(model_dir: str | Path, data_dir: str | Path, out_dir: str | Path, n
     k = model.frames_per_step
     out_dir = Path(out_dir)
     dataset = D.DuetDataset(data_dir, "test", obs_size=(cfg.frame_height, cfg.frame_width))
-    result: dict = {"model": str(model_dir), "data": str(data_dir), "episodes": len(dataset.valid_ids),
+    result: dict = {"model": portable_path(model_dir, parts=3), "data": portable_path(data_dir),  # never absolute
+                    "episodes": len(dataset.valid_ids),
                     "frames_per_step": k, "action_guidance": cfg.sampler.action_guidance}
 
     # (a) + (b): short rollouts

@@ -25,6 +25,7 @@ from __future__ import annotations
 import hashlib
 import logging
 import os
+import time
 from pathlib import Path
 
 import jax
@@ -144,12 +145,14 @@ class LatentClips:
         source = self._canonical.get((st.st_dev, st.st_ino), video)
         return self.cache.get_or_encode(source, self.encoder, self.dataset.frames.size)
 
-    def build(self, episode_ids=None, workers: int | None = None) -> int:
+    def build(self, episode_ids=None, workers: int | None = None, until: float | None = None) -> int:
         """Encode every (valid) episode's videos now; returns the number of videos encoded or found.
 
         ``workers`` videos are decoded and encoded at once (threads: the video decoder and XLA release the GIL,
         and one batch-1 streaming encode keeps about one CPU core busy); default: the CPU count, at most
-        ``BUILD_WORKERS``. The cache files are the same whatever the number.
+        ``BUILD_WORKERS``. The cache files are the same whatever the number. ``until`` (epoch seconds) stops
+        starting new videos after that time; the rest are encoded when a clip first needs them (``latents``),
+        as the episodes a growing dataset adds later are.
         """
         from concurrent.futures import ThreadPoolExecutor
 
@@ -163,11 +166,19 @@ class LatentClips:
         if workers < 1:
             raise ValueError(f"workers must be >= 1, got {workers}")
         per_episode = max(1, len(videos) // max(1, len(ids)))
+        done = 0
         with ThreadPoolExecutor(workers) as pool:  # map keeps the order; results arrive as they are ready
-            for i, (video, lat) in enumerate(zip(videos, pool.map(self._cached_or_encoded, videos))):
-                self._latents[video] = lat
-                if (i + 1) % (20 * per_episode) == 0:
-                    logger.info("latent cache: %d/%d videos (%s)", i + 1, len(videos), dict(self.cache.stats))
+            for start in range(0, len(videos), workers):
+                if until is not None and time.time() >= until:
+                    logger.info("latent cache: stopped at %d/%d videos (time); the rest encode on first use",
+                                done, len(videos))
+                    break
+                chunk = videos[start:start + workers]
+                for video, lat in zip(chunk, pool.map(self._cached_or_encoded, chunk)):
+                    self._latents[video] = lat
+                    done += 1
+                    if done % (20 * per_episode) == 0:
+                        logger.info("latent cache: %d/%d videos (%s)", done, len(videos), dict(self.cache.stats))
         return len(self._latents)
 
     def load(self, segment, num_frames: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -3,6 +3,8 @@
     x_sigma = (1 - sigma) * x0 + sigma * eps,   sigma = t / 1000,   target v = eps - x0,
     loss = mean over every element of (v_theta - (eps - x0))^2, in f32.
 
+The rules themselves are ``solaris_env.world_model.flow_matching``.
+
 Timesteps are integers ``t ~ randint(0, 1001)`` (0..1000 inclusive), no shift, no weighting; the DiT
 receives ``t`` itself. Two noise types:
 
@@ -21,7 +23,9 @@ from collections.abc import Callable
 import jax
 import jax.numpy as jnp
 
-NUM_TRAIN_TIMESTEPS = 1000  # t in 0..1000, sigma = t / 1000 (docs/model.md §6.1; SamplerConfig.num_train_timesteps)
+from solaris_env.world_model import flow_matching
+from solaris_env.world_model.flow_matching import NUM_TRAIN_TIMESTEPS
+
 NOISE_TYPES = ("standard", "diffusion_forcing")
 
 # dit_forward(x, t, cond, context, mouse, keyboard) -> v, shaped like x
@@ -46,8 +50,7 @@ def sample_timesteps(key: jax.Array, shape_BPF: tuple[int, int, int], noise_type
 
 def noisy_latents(x0_BPFhwC: jax.Array, noise_BPFhwC: jax.Array, t_BPF: jax.Array) -> jax.Array:
     """x_sigma = (1 - sigma) x0 + sigma eps with sigma = t / 1000 per (sample, player, frame), f32."""
-    sigma = (t_BPF.astype(jnp.float32) / NUM_TRAIN_TIMESTEPS)[..., None, None, None]  # (B, P, F, 1, 1, 1)
-    return (1.0 - sigma) * x0_BPFhwC.astype(jnp.float32) + sigma * noise_BPFhwC.astype(jnp.float32)
+    return flow_matching.noise(x0_BPFhwC, noise_BPFhwC, flow_matching.sigma_BPF111(t_BPF))
 
 
 def flow_matching_loss(dit_forward: DiTForward, x0: jax.Array, cond: jax.Array, context: jax.Array,
@@ -66,5 +69,4 @@ def flow_matching_loss(dit_forward: DiTForward, x0: jax.Array, cond: jax.Array, 
                          f"{x0.shape[:3]}")
     x_sigma = noisy_latents(x0, noise, t)
     v_pred = dit_forward(x_sigma, t.astype(jnp.float32), cond, context, mouse, keyboard)
-    v_target = noise.astype(jnp.float32) - x0.astype(jnp.float32)
-    return jnp.mean(jnp.square(v_pred.astype(jnp.float32) - v_target))
+    return jnp.mean(jnp.square(v_pred.astype(jnp.float32) - flow_matching.velocity_target(x0, noise)))

@@ -27,6 +27,7 @@ import jax.numpy as jnp
 import optax
 from flax import nnx
 
+from solaris_env.world_model import flow_matching
 from training.objectives import noisy_latents, sample_timesteps
 from training.self_forcing import rollout
 from training.step import TrainState, apply_gradients
@@ -46,7 +47,7 @@ def rollout_regression_loss(graphdef: nnx.GraphDef, params, rest, batch: dict, k
     v = dit.forward_teacher_forcing(own, noisy_latents(x0, noise, t_BPF), jnp.zeros(t_BPF.shape, jnp.float32),
                                     t_BPF.astype(jnp.float32), batch["cond"], batch["context"], batch["mouse"],
                                     batch["keyboard"])
-    return jnp.mean(jnp.square(v.astype(jnp.float32) - (noise - x0)))
+    return jnp.mean(jnp.square(v.astype(jnp.float32) - flow_matching.velocity_target(x0, noise)))
 
 
 def make_rollout_regression_step(graphdef: nnx.GraphDef, tx: optax.GradientTransformation,

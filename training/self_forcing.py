@@ -62,7 +62,7 @@ import jax.numpy as jnp
 import optax
 from flax import nnx, struct
 
-from solaris_env.world_model import kv_cache
+from solaris_env.world_model import flow_matching, kv_cache
 from solaris_env.world_model.action_module import window_at
 from solaris_env.world_model.config import WorldModelConfig
 from solaris_env.world_model.dit import WorldDiT
@@ -177,10 +177,6 @@ def sample_exit_index(key: jax.Array, cfg: WorldModelConfig) -> jax.Array:
     return jax.random.randint(key, (), 0, len(cfg.sampler.ar_timesteps), dtype=jnp.int32)
 
 
-def _sigma(t: jax.Array, cfg: WorldModelConfig) -> jax.Array:
-    return t / cfg.sampler.num_train_timesteps
-
-
 def _frame_inputs(cfg: WorldModelConfig, batch: dict, i: jax.Array) -> tuple:
     """(cond, context, mouse window, keyboard window) of latent frame i, as ``decode_step`` takes them."""
     cond = jax.lax.dynamic_slice_in_dim(batch["cond"], i, 1, axis=2)  # (B, P, 1, h, w, Cc)
@@ -189,19 +185,17 @@ def _frame_inputs(cfg: WorldModelConfig, batch: dict, i: jax.Array) -> tuple:
 
 def _denoise_to_exit(dit: WorldDiT, z: jax.Array, inputs: tuple, cache: kv_cache.DiTCache, i: jax.Array,
                      exit_index: jax.Array, timesteps: jax.Array, key: jax.Array) -> jax.Array:
-    """Steps 0..s-1 of the x0 + fresh-noise sampler from the noise ``z`` -> x_s (f32). No gradient: every
-    input must already be stop-gradient (the dynamic trip count makes this a while loop). Step j re-noises
-    with ``normal(split(key, n)[j])``, the convention of ``sampler.sample_frame``."""
-    cfg = dit.cfg
+    """Steps 0..s-1 of the x0 + fresh-noise sampler (``flow_matching.sampler_step``) from the noise ``z`` -> x_s
+    (f32). No gradient: every input must already be stop-gradient (the dynamic trip count makes this a while
+    loop). Step j re-noises with ``normal(split(key, n)[j])``, the convention of ``sampler.sample_frame``."""
+    sigmas = flow_matching.sigma_of_timestep(timesteps, dit.cfg.sampler.num_train_timesteps)
     keys = jax.random.split(key, timesteps.shape[0] - 1)
     t_shape = z.shape[:3]
 
     def body(j, z_t):
-        t_now, t_next = timesteps[j], timesteps[j + 1]
-        v, _ = dit.decode_step(z_t, jnp.full(t_shape, t_now), *inputs, cache, i)  # cache update discarded
-        x0 = z_t - _sigma(t_now, cfg) * v.astype(jnp.float32)
-        sigma_next = _sigma(t_next, cfg)
-        return (1.0 - sigma_next) * x0 + sigma_next * jax.random.normal(keys[j], z_t.shape, jnp.float32)
+        v, _ = dit.decode_step(z_t, jnp.full(t_shape, timesteps[j]), *inputs, cache, i)  # cache update discarded
+        fresh_eps = jax.random.normal(keys[j], z_t.shape, jnp.float32)
+        return flow_matching.sampler_step(z_t, v, sigmas[j], sigmas[j + 1], fresh_eps)
 
     return jax.lax.fori_loop(0, exit_index, body, z)
 
@@ -224,6 +218,7 @@ def rollout(graphdef: nnx.GraphDef, params, rest, batch: dict, key: jax.Array, e
     cfg = dit.cfg
     timesteps = jnp.asarray(ar_schedule(cfg.sampler))  # (n + 1,) ending in 0
     t_exit = timesteps[exit_index]
+    sigma_exit = flow_matching.sigma_of_timestep(t_exit, cfg.sampler.num_train_timesteps)
     b, p, f = batch["cond"].shape[:3]
     frame_shape = (b, p, 1, cfg.latent_height, cfg.latent_width, cfg.out_channels)
 
@@ -233,7 +228,7 @@ def rollout(graphdef: nnx.GraphDef, params, rest, batch: dict, key: jax.Array, e
         z = jax.random.normal(k_init, frame_shape, jnp.float32)
         x_s = _denoise_to_exit(frozen, z, inputs, jax.lax.stop_gradient(cache), i, exit_index, timesteps, k_renoise)
         v, _ = dit.decode_step(x_s, jnp.full((b, p, 1), t_exit), *inputs, cache, i)
-        x0 = x_s - _sigma(t_exit, cfg) * v.astype(jnp.float32)
+        x0 = flow_matching.x0_from_velocity(x_s, v, sigma_exit)
         _, cache = dit.decode_step(jax.lax.stop_gradient(x0), jnp.zeros((b, p, 1)), *inputs, cache, i)  # commit
         return cache, (x0[:, :, 0], x_s[:, :, 0])
 
@@ -261,7 +256,8 @@ def checkpointed_generator_x0(graphdef: nnx.GraphDef, params, rest, batch: dict,
     t_BPF = jnp.zeros(x_s.shape[:3])
     v = dit.forward_teacher_forcing(x0_hat, x_s, t_BPF, t_BPF + r.t_exit, batch["cond"], batch["context"],
                                     batch["mouse"], batch["keyboard"], kv_grad=kv_backprop)
-    return x_s - _sigma(r.t_exit, dit.cfg) * v.astype(jnp.float32)
+    sigma_exit = flow_matching.sigma_of_timestep(r.t_exit, dit.cfg.sampler.num_train_timesteps)
+    return flow_matching.x0_from_velocity(x_s, v, sigma_exit)
 
 
 def naive_generator_x0(graphdef: nnx.GraphDef, params, rest, batch: dict, key: jax.Array,
@@ -284,8 +280,8 @@ def score_x0(dit: WorldDiT, x_t: jax.Array, t_BPF: jax.Array, batch: dict, clean
     clean previous frames (``training.step``); the DiT ignores them without the warp."""
     v = dit.forward_bidirectional(x_t, t_BPF.astype(jnp.float32), *(batch[k] for k in CONDITIONING_KEYS),
                                   clean=jax.lax.stop_gradient(clean_BPFhwC))
-    sigma = _sigma(t_BPF.astype(jnp.float32), dit.cfg)[..., None, None, None]
-    return x_t.astype(jnp.float32) - sigma * v.astype(jnp.float32)
+    sigma = flow_matching.sigma_BPF111(t_BPF, dit.cfg.sampler.num_train_timesteps)
+    return flow_matching.x0_from_velocity(x_t, v, sigma)
 
 
 def dmd_gradient(x0: jax.Array, real_x0: jax.Array, fake_x0: jax.Array, sf_cfg: SelfForcingConfig) -> jax.Array:
@@ -314,8 +310,8 @@ def generator_dmd_loss(x0_fn: GeneratorX0, graphs: SelfForcingGraphs, params, st
     x0 = x0_fn(graphs.generator, params, state.generator.rest, batch, k_rollout, exit_index)
     x0_sg = jax.lax.stop_gradient(x0)
     t_BPF = sample_timesteps(k_t, x0.shape[:3], "standard")  # t' per sample, shared over P and F
-    sigma = _sigma(t_BPF.astype(jnp.float32), cfg)[..., None, None, None]
-    x_t = (1.0 - sigma) * x0_sg + sigma * jax.random.normal(k_noise, x0.shape, jnp.float32)
+    sigma = flow_matching.sigma_BPF111(t_BPF, cfg.sampler.num_train_timesteps)
+    x_t = flow_matching.noise(x0_sg, jax.random.normal(k_noise, x0.shape, jnp.float32), sigma)
     teacher = nnx.merge(graphs.teacher, state.teacher_params, state.teacher_rest)
     critic = nnx.merge(graphs.critic, jax.lax.stop_gradient(state.critic.params), state.critic.rest)
     real_x0 = jax.lax.stop_gradient(score_x0(teacher, x_t, t_BPF, batch, x0_sg))

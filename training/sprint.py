@@ -6,19 +6,18 @@ One command for a borrowed accelerator (docs/training.md, "GPU sprint"): whateve
 (a GPU there, the CPU here) trains while the engine records episodes on the CPU cores.
 
 * **Data while training.** ``Collector`` runs the engine's ``collect`` jobs (``solaris_env.engine.cli``; the
-  config's ``collect`` block as ``training.cli.collect_argv`` reads it: >= 10 instances with ``world: mixed``
+  config's ``collect`` block as ``training.collect.collect_argv`` reads it: >= 10 instances with ``world: mixed``
   give all five flat surfaces and the normal worlds; the seed moves on by 1000 per sprint generation, so a
   continued model sees new episodes) in a ``spawn`` pool of background processes (CPU-only JAX, lower
   priority) writing the usual Duet layout, ``test_fraction`` of the episodes held out in ``duet/test``
   (when a VAE stage will run, a held-out episode is recorded first: they evaluate on it). Training starts once
   ``min_train_episodes`` exist (episodes already in ``--data`` count). Every stage reads the training
-  split through ``growing_stream`` (``train.duet_stream`` / ``vpt_stream`` with the stage-config key
-  ``rescan_s``): every ``rescan_s`` seconds the episodes completed since (at most ``RESCAN_MAX_NEW`` at a
-  time) join the sampler; the single-player stage reads each bot's view of the Duet episodes
-  (``DuetPlayers``) instead of a VPT export. The draws depend on when episodes arrive: a sprint is neither
-  resumable nor bit-for-bit repeatable, unlike ``solaris-train all``.
+  split through ``training.growing_data.growing_stream`` (``train.duet_stream`` / ``vpt_stream`` with the
+  stage-config key ``rescan_s``): every ``rescan_s`` seconds the episodes completed since join the sampler; the
+  single-player stage reads each bot's view of the Duet episodes instead of a VPT export. The draws depend on
+  when episodes arrive: a sprint is neither resumable nor bit-for-bit repeatable, unlike ``solaris-train all``.
 * **Stages and time.** From scratch: the VAE, the VAE decoder, stages 1-3, Self Forcing and the refiner
-  (``training.train``'s functions, ``training.cli.call_stage``) with the config's ``fractions``; from a
+  (``training.train``'s functions, ``train.call_stage``) with the config's ``fractions``; from a
   model (``--init``, which has its VAE): the DiT stages with ``fractions_from_init``. A stage is
   open-ended and stops at its deadline (``LoopSpec.deadline``). When a stage is about to start, the time
   left (the budget's end - now - ``reserve_s``, kept for the final export) is planned over it and the
@@ -64,7 +63,10 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from training import data as D
+from solaris_env.paths import portable_text
+from training.collect import collect_argv
+from training.growing_data import STREAMS, data_record
+from training.config_files import read_json_config
 
 logger = logging.getLogger(__name__)
 
@@ -74,7 +76,6 @@ LINEAGE_FILE = "lineage.json"
 LINEAGE_FORMAT = "solaris_env.sprint_lineage"
 VAE_STAGES = ("vae", "vae-decoder")
 OPEN_ENDED_STEPS = 10**9  # a sprint stage runs until its deadline
-RESCAN_MAX_NEW = 64  # episodes a rescan adds at most (each is validated, then encoded when first drawn)
 OPTIONAL_STAGE_KEYS = ("ema_decay", "generator", "loss")  # keys a stage override may add to a base block
 HEARTBEAT_S = 30.0  # a progress line at most this often inside the DiT stages
 
@@ -140,7 +141,7 @@ class SprintConfig:
     save_every_min: float
     export_from: str  # periodic exports from this stage on
     export: dict  # shard_mib, max_total_mib, storage_dtype
-    collect: dict  # training.cli.collect_argv's block
+    collect: dict  # training.collect.collect_argv's block
     min_train_episodes: int
     rescan_s: float
     compile_cache: bool
@@ -152,7 +153,7 @@ class SprintConfig:
         if not path.is_file():
             known = sorted(p.stem.removeprefix("sprint-") for p in CONFIG_DIR.glob("sprint-*.json"))
             raise FileNotFoundError(f"no sprint config {path}; presets with one: {known}")
-        return cls.from_dict(json.loads(path.read_text()), str(path))
+        return cls.from_dict(read_json_config(path), str(path))
 
     @classmethod
     def from_dict(cls, data: dict, where: str = "sprint config") -> SprintConfig:
@@ -236,7 +237,7 @@ def plan_shares(pending: list[tuple[str, float]], overhead_s: dict, min_train_s:
 
 
 # ---------------------------------------------------------------------------------------------
-# Data made while training: the collector and the growing streams
+# Data made while training: the collector (the growing streams: ``training.growing_data``)
 # ---------------------------------------------------------------------------------------------
 
 
@@ -264,7 +265,6 @@ class Collector:
         from solaris_env.engine import cli as engine_cli
         from solaris_env.engine.recorder import clean_staging, episode_complete
         from solaris_env.world_model.config import preset
-        from training.cli import collect_argv
 
         self.data_dir = Path(data_dir)
         args = engine_cli.build_parser().parse_args(collect_argv(self.data_dir, preset(preset_name), block))
@@ -351,127 +351,6 @@ def count_episodes(data_dir: Path) -> dict:
             for split in ("train", "test")}
 
 
-def _complete(alpha_mp4: Path) -> bool:
-    """All of an episode's files moved in: the recorder moves both bots' ``_episode_info.json`` last."""
-    bravo_mp4 = alpha_mp4.with_name(alpha_mp4.name.replace("_Alpha_", "_Bravo_", 1))
-    return all(p.with_name(p.name.removesuffix(".mp4") + "_episode_info.json").is_file()
-               for p in (alpha_mp4, bravo_mp4))
-
-
-class GrowingDuetDataset(D.DuetDataset):
-    """A ``DuetDataset`` that ``rescan()``s its directory for episodes finished since. New episodes get the
-    next ids (ids follow arrival, not file names: fine for training, not for eval-id files). ``history``:
-    (epoch seconds, episodes, frames) at the start and after every rescan that added some."""
-
-    def __init__(self, *args, **kw) -> None:
-        super().__init__(*args, **kw)
-        self.history = [self._stats()]
-
-    def _add_episode(self, alpha_mp4: Path) -> None:
-        if _complete(alpha_mp4):  # one still being moved in is picked up by a later rescan
-            super()._add_episode(alpha_mp4)
-
-    def rescan(self, max_new: int = RESCAN_MAX_NEW) -> list[int]:
-        """Add up to ``max_new`` episodes finished since; returns the new valid ids."""
-        known = set(self.stems)
-        fresh = [p for p in sorted(self.directory.glob(f"*_{self.bots[0]}_*.mp4"), key=lambda p: p.name)
-                 if p.name.removesuffix(".mp4") not in known and _complete(p)][:max_new]
-        first = self.num_episodes
-        for alpha_mp4 in fresh:
-            self._add_episode(alpha_mp4)
-        new = [i for i in range(first, self.num_episodes) if self.is_valid(i)]
-        if fresh:
-            self.history.append(self._stats())
-            logger.info("%s/%s: %d new episodes, %d in all", self.name, self.split, len(new), self.num_episodes)
-        return new
-
-    def _stats(self) -> tuple[float, int, int]:
-        frames = sum(rec.num_records for i in self.valid_ids for rec in self.recordings(i))
-        return time.time(), len(self.valid_ids), frames
-
-
-class DuetPlayers:
-    """Each bot's view of a (growing) Duet dataset as single-player episodes, the ``VPTDataset`` interface
-    ``SinglePlayerSegmentSampler`` and ``LatentClips`` read: episode ``2 i + p`` is player p of Duet episode
-    i, its actions the Duet ones (what the VPT export's round trip gives back, ``engine.vpt_export``)."""
-
-    def __init__(self, duet) -> None:
-        self.duet, self.frames, self.name, self.split = duet, duet.frames, "duet-players", duet.split
-
-    @property
-    def skipped(self):
-        return self.duet.skipped
-
-    @property
-    def num_episodes(self) -> int:
-        return 2 * self.duet.num_episodes
-
-    @property
-    def valid_ids(self) -> list[int]:
-        return [2 * i + p for i in self.duet.valid_ids for p in (0, 1)]
-
-    def is_valid(self, episode_id: int) -> bool:
-        return self.duet.is_valid(episode_id // 2)
-
-    def episode(self, episode_id: int) -> D.VPTEpisode:
-        rec = self.duet.recordings(episode_id // 2)[episode_id % 2]
-        return D.VPTEpisode(rec.video, rec.actions, rec.act_T25)
-
-    def rescan(self, max_new: int = RESCAN_MAX_NEW) -> list[int]:
-        return [2 * i + p for i in self.duet.rescan(max_new) for p in (0, 1)]
-
-
-class _Rescanning:
-    """A sampler whose ``next()`` first rescans its dataset every ``rescan_s`` seconds, the new episodes
-    joining the candidates (``add_episode``)."""
-
-    def __init__(self, dataset, num_frames: int, seed: int, rescan_s: float, **ranks) -> None:
-        super().__init__(dataset, num_frames, seed=seed, **ranks)
-        self.rescan_s = float(rescan_s)
-        self._next_scan = time.monotonic() + self.rescan_s
-
-    def next(self):
-        if time.monotonic() >= self._next_scan:
-            for episode_id in self.dataset.rescan():
-                self.add_episode(episode_id)
-            self._next_scan = time.monotonic() + self.rescan_s
-        return super().next()
-
-
-class RescanningMultiplayerSampler(_Rescanning, D.MultiplayerSegmentSampler):
-    """``MultiplayerSegmentSampler`` over a ``GrowingDuetDataset``."""
-
-
-class RescanningSinglePlayerSampler(_Rescanning, D.SinglePlayerSegmentSampler):
-    """``SinglePlayerSegmentSampler`` over ``DuetPlayers``."""
-
-
-STREAMS: list = []  # the growing streams' (Duet dataset, sampler) in creation order: the sprint's data record
-
-
-def growing_stream(data_dir: Path, cfg, num_frames: int, seed: int, rescan_s: float, single_player: bool,
-                   rank: int = 0, num_ranks: int = 1):
-    """(dataset, sampler) over ``data_dir/duet/train`` that picks up new episodes every ``rescan_s`` s:
-    Duet segments, or with ``single_player`` each bot's view (``DuetPlayers``). Registered in ``STREAMS``."""
-    duet = GrowingDuetDataset(data_dir, "train", obs_size=(cfg.frame_height, cfg.frame_width), frame_cache_mb=4096)
-    dataset = DuetPlayers(duet) if single_player else duet
-    sampler_cls = RescanningSinglePlayerSampler if single_player else RescanningMultiplayerSampler
-    sampler = sampler_cls(dataset, num_frames, seed, rescan_s, rank=rank, num_ranks=num_ranks)
-    STREAMS.append((duet, sampler))
-    return dataset, sampler
-
-
-def data_record(streams: list) -> dict:
-    """What a stage's training streams saw: episodes and frames when the stage started and at its end,
-    the segments drawn and the rescans that added episodes."""
-    if not streams:
-        return {}
-    duet = streams[0][0]
-    (_, ep0, fr0), (_, ep1, fr1) = duet.history[0], duet.history[-1]
-    return {"episodes_at_start": ep0, "frames_at_start": fr0, "episodes_at_end": ep1, "frames_at_end": fr1,
-            "segments_drawn": sum(s.step for _, s in streams), "rescans_with_new_episodes": len(duet.history) - 1}
-
-
 # ---------------------------------------------------------------------------------------------
 # Exports and lineage
 # ---------------------------------------------------------------------------------------------
@@ -522,7 +401,7 @@ class Exporter:
 
     def export(self, model, source: str, step: int | None = None, final: bool = False) -> None:
         from solaris_env.world_model import checkpoint
-        from solaris_env.world_model.world_model import COMPONENTS
+        from solaris_env.world_model.components import COMPONENTS
 
         t = time.time()
         self.lineage["exports"].append({"at_s": round(t - self.t0, 1), "stage": source, "step": step, "final": final})
@@ -657,9 +536,10 @@ class Sprint:
         generation = (init_lineage or {}).get("generation", 0) + 1
         self.collect_block = {**cfg.collect, "seed": int(cfg.collect["seed"]) + 1000 * (generation - 1)}
         self.lineage = {
-            "format": LINEAGE_FORMAT, "version": 1, "generation": generation, "command": args.command(),
+            "format": LINEAGE_FORMAT, "version": 1, "generation": generation,
+            "command": [portable_text(a, parts=3) for a in args.command()],  # no machine's absolute paths
             "preset": cfg.preset, "config": dataclasses.asdict(cfg),
-            "init": None if init is None else {"model": args.init, "lineage": init_lineage},
+            "init": None if init is None else {"model": portable_text(args.init, parts=3), "lineage": init_lineage},
             "devices": [str(d) for d in jax.devices()], "platform": self.platform,
             "device_kind": jax.devices()[0].device_kind, "git": git_commit(), "start_time": _iso(t0),
             "budget_s": round(self.end - t0, 1), "collect": self.collect_block, "stages": [], "exports": []}
@@ -748,9 +628,8 @@ class Sprint:
         """Train ``stage`` until ``deadline``; returns its lineage record: wall time, steps, when its first step
         ended (setup and JIT compile: seconds after the stage's start, when that step was logged), its last
         losses and the data it saw."""
-        from training.cli import call_stage
         from training.metrics import read_metrics
-        from training.train import STAGES, stage_dir
+        from training.train import STAGES, call_stage, stage_dir
 
         shutil.rmtree(stage_dir(self.run_dir, stage), ignore_errors=True)  # no stale checkpoints or rollouts
         exportable = STAGES.index(stage) >= STAGES.index(self.cfg.export_from)
@@ -789,5 +668,4 @@ class Sprint:
               f"data after {self.lineage['first_data_s']:.0f} s; collected {self.lineage['collected']}", flush=True)
 
 
-__all__ = ["Collector", "DuetPlayers", "Exporter", "GrowingDuetDataset", "SprintArgs", "SprintConfig",
-           "growing_stream", "plan_shares", "run_sprint", "stage_blocks"]
+__all__ = ["Collector", "Exporter", "SprintArgs", "SprintConfig", "plan_shares", "run_sprint", "stage_blocks"]

@@ -38,12 +38,15 @@ import optax
 from flax import nnx
 
 from solaris_env.world_model import checkpoint
+from solaris_env.world_model.components import COMPONENTS
 from solaris_env.world_model.config import VAEConfig, WorldModelConfig
 from solaris_env.world_model.config import preset as make_preset
 from solaris_env.world_model.dit import WorldDiT
-from solaris_env.world_model.world_model import COMPONENTS, WorldModel
+from solaris_env.world_model.world_model import WorldModel
 from training import data as D
 from training.checkpointing import Checkpointer, abstract_state
+from training.config_files import read_json_config
+from training.growing_data import growing_stream
 from training.metrics import MetricsLogger
 from training.step import (
     TrainState,
@@ -88,7 +91,7 @@ def load_stage_config(preset_name: str, path: str | Path | None = None) -> dict:
     if not path.is_file():
         raise FileNotFoundError(f"no stage config {path}; presets with one: "
                                 f"{sorted(p.stem for p in CONFIG_DIR.glob('*.json'))}")
-    cfg = json.loads(path.read_text())
+    cfg = read_json_config(path)
     missing = [s for s in STAGES if s not in cfg]
     if missing:
         raise ValueError(f"{path}: missing stage blocks {missing}")
@@ -200,9 +203,8 @@ def _ranks() -> dict:
 def duet_stream(data_dir: Path, cfg: WorldModelConfig, num_frames: int, seed: int, split: str = "train",
                 rescan_s: float | None = None):
     """(dataset, sampler) of the Duet episodes; ``rescan_s`` (a stage-config key): the training split picks up
-    the episodes written meanwhile every ``rescan_s`` seconds (``training.sprint``)."""
+    the episodes written meanwhile every ``rescan_s`` seconds (``training.growing_data``)."""
     if rescan_s and split == "train":
-        from training.sprint import growing_stream
         return growing_stream(data_dir, cfg, num_frames, seed, rescan_s, single_player=False, **_ranks())
     dataset = D.DuetDataset(data_dir, split, obs_size=(cfg.frame_height, cfg.frame_width), frame_cache_mb=4096)
     return dataset, D.MultiplayerSegmentSampler(dataset, num_frames, seed=seed, **(_ranks() if split == "train" else {}))
@@ -213,7 +215,6 @@ def vpt_stream(data_dir: Path, cfg: WorldModelConfig, num_frames: int, seed: int
     """(dataset, sampler) of single-player episodes: the VPT-layout export; with ``rescan_s``, each bot's
     view of the growing Duet episodes instead (``duet_stream``)."""
     if rescan_s and split == "train":
-        from training.sprint import growing_stream
         return growing_stream(data_dir, cfg, num_frames, seed, rescan_s, single_player=True, **_ranks())
     if not (Path(data_dir) / "vpt" / split / "episodes_info.json").is_file():
         from solaris_env.engine.vpt_export import export_vpt
@@ -399,16 +400,18 @@ def _frozen_player_embedding(params) -> Any:
 
 
 def clip_stream(out: Path, data_dir: Path, cfg: WorldModelConfig, vae, encoder, sc: dict, seed: int,
-                single_player: bool):
+                single_player: bool, deadline: float | None = None):
     """(LatentClips, resumable sampler, jitted batch preparation) of a DiT stage; the latent cache of the
-    stage's VAE lives in ``out/latents`` and is built (once) before training."""
+    stage's VAE lives in ``out/latents`` and is built (once) before training, with at most half of the time
+    to ``deadline`` (epoch seconds) when one is given: videos not encoded by then are on first use."""
     from training.latents import latent_clips, make_prepare_latents
 
     dataset, sampler = (vpt_stream if single_player else duet_stream)(data_dir, cfg, sc["num_frames"], seed,
                                                                       rescan_s=sc.get("rescan_s"))
     clips = latent_clips(dataset, cfg, vae, Path(out) / "latents", canonical_dir=Path(data_dir) / "duet")
     t0 = time.perf_counter()
-    n = clips.build()
+    now = time.time()
+    n = clips.build(until=None if deadline is None else now + max(0.0, deadline - now) / 2)
     logger.info("latent cache: %d videos ready in %.0f s (%s)", n, time.perf_counter() - t0, dict(clips.cache.stats))
     return clips, sampler, make_prepare_latents(cfg, vae, encoder)
 
@@ -442,7 +445,7 @@ def train_flow(stage: str, out: str | Path, data_dir: str | Path, stage_cfg: dic
         train_step = make_rollout_regression_step(graphdef, tx, ema_decay)
     else:
         train_step = make_train_step(graphdef, fs.entry_point, fs.noise_type, tx, ema_decay)
-    clips, sampler, prepare = clip_stream(out, data_dir, cfg, vae, encoder, sc, seed, fs.single_player)
+    clips, sampler, prepare = clip_stream(out, data_dir, cfg, vae, encoder, sc, seed, fs.single_player, deadline)
     batch_size = local_batch_size(sc["batch_size"])
 
     def draw():
@@ -504,7 +507,8 @@ def train_self_forcing(out: str | Path, data_dir: str | Path, stage_cfg: dict, s
         raise ValueError(f"self-forcing generator must be one of {sorted(make_generator_step)}, got {mode!r}")
     iteration = SF.make_iteration(make_generator_step[mode](graphs, gen_tx, sf_cfg),
                                   SF.make_critic_step(graphs, critic_tx, sf_cfg), sf_cfg)
-    clips, sampler, prepare = clip_stream(out, data_dir, cfg, vae, encoder, sc, seed, single_player=False)
+    clips, sampler, prepare = clip_stream(out, data_dir, cfg, vae, encoder, sc, seed, single_player=False,
+                                          deadline=deadline)
     batch_size = local_batch_size(sc["batch_size"])
 
     def draw():
@@ -583,6 +587,22 @@ def train_refiner(out: str | Path, data_dir: str | Path, stage_cfg: dict, seed: 
 # ---------------------------------------------------------------------------------------------
 # Small file helpers
 # ---------------------------------------------------------------------------------------------
+
+
+def call_stage(stage: str, out, data, stage_cfg: dict, **kw) -> Path:
+    """Run ``stage``'s function of this module on its block of ``stage_cfg`` with keyword arguments ``kw``
+    (seed, steps, resume, fsdp, deadline, on_model: see the functions); ``solaris-train`` and the sprint call it."""
+    if stage == "vae":
+        return train_vae(out, data, stage_cfg["preset"], stage_cfg["vae"], **kw)
+    if stage == "vae-decoder":
+        return train_vae_decoder(out, data, stage_cfg["preset"], stage_cfg["vae-decoder"], **kw)
+    if stage in FLOW_STAGES:
+        return train_flow(stage, out, data, stage_cfg[stage], **kw)
+    if stage == "self-forcing":
+        return train_self_forcing(out, data, stage_cfg["self-forcing"], **kw)
+    if stage == "refiner":
+        return train_refiner(out, data, stage_cfg["refiner"], **kw)
+    raise ValueError(f"unknown stage {stage!r}")
 
 
 def _log_json(path: Path, obj) -> None:

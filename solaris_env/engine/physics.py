@@ -110,6 +110,12 @@ def pitch_to(src: np.ndarray, dst: np.ndarray) -> float:
     return math.atan2(d[1], math.hypot(d[0], d[2]))
 
 
+def face(p: Player, target: Player) -> None:
+    """Set ``p``'s camera straight onto another player (a setup before recording, not a tick's turn)."""
+    p.yaw = yaw_to(p.pos, target.pos) % (2 * math.pi)
+    p.pitch = pitch_to(p.pos, target.pos)
+
+
 # ---------------------------------------------------------------------------------------------
 # Collision
 # ---------------------------------------------------------------------------------------------

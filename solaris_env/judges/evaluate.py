@@ -22,6 +22,7 @@ from solaris_env.judges.episodes import find_episodes
 from solaris_env.judges.judge import DEFAULT_WEIGHTS, Judge
 from solaris_env.judges.scoring import episode_accuracy, judge_episodes, task_accuracy
 from solaris_env.judges.vlm import VLMConfig, VLMJudge
+from solaris_env.paths import portable_path
 
 JUDGES = ("probe", "vlm")
 
@@ -56,7 +57,7 @@ def main(argv: list[str] | None = None) -> int:
         raise SystemExit(f"no eval episodes under {args.data}")
     results = judge_episodes(judge, episodes)
     per_type = episode_accuracy(results)
-    report = {"data": str(args.data), "judge": args.judge, "episode_level": per_type,
+    report = {"data": portable_path(args.data), "judge": args.judge, "episode_level": per_type,
               "tasks": task_accuracy(per_type)}
     for etype, s in per_type.items():
         print(f"{etype:24s} episodes {s['episodes']:3d}  accuracy {100 * s['accuracy']:6.2f} %  "

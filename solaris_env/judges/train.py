@@ -65,6 +65,7 @@ from solaris_env.judges.probe import (
     save_probe,
 )
 from solaris_env.judges.scoring import episode_accuracy, judge_episodes, task_accuracy
+from solaris_env.paths import portable_path
 
 EVAL_BATCH = 256
 
@@ -211,7 +212,8 @@ def main(argv: list[str] | None = None) -> int:
             + ", ".join(f"{n}: {len(examples[n])}" for n in todo))
         for k, name in enumerate(todo):
             probe, summary = train_probe(name, bank, examples[name], cfg, args.seed + 1000 * k, log)
-            summary.update(config=config_to_dict(cfg), data=[str(d) for d in args.data], params=num_params(probe))
+            summary.update(config=config_to_dict(cfg), data=[portable_path(d) for d in args.data],
+                           params=num_params(probe))
             save_probe(out / f"{name}.safetensors", name, probe, summary)
             log(f"wrote {out / f'{name}.safetensors'} ({num_params(probe)} parameters)")
         del bank, examples
@@ -238,7 +240,7 @@ def heldout_report(out: Path, names: list[str], heldout: str, cfg: JudgeConfig, 
     for n in names:
         log(f"{n}: held-out frame accuracy {frame[n].get('accuracy', float('nan')):.4f} "
             f"(balanced {frame[n].get('balanced_accuracy', float('nan')):.4f}, {frame[n]['examples']} examples)")
-    return {"heldout": str(heldout), "episodes": len(episodes), "frame_level": frame,
+    return {"heldout": portable_path(heldout), "episodes": len(episodes), "frame_level": frame,
             "episode_level": per_type, "tasks": task_accuracy(per_type), "wrong_queries": wrong,
             "weights": {n: read_extra(out / f"{n}.safetensors") for n in names}}
 

@@ -47,6 +47,7 @@ from flax import nnx
 
 from solaris_env.world_model import config as config_lib
 from solaris_env.world_model import official
+from solaris_env.world_model.components import COMPONENTS, abstract_modules
 from solaris_env.world_model.config import WorldModelConfig
 
 FORMAT = "solaris_env.world_model"
@@ -117,7 +118,6 @@ def check_tree(expected: dict[str, tuple], found: dict[str, tuple], where: str, 
 
 def _abstract(config: WorldModelConfig) -> dict[str, tuple]:
     """{component: (graphdef, abstract state)}."""
-    from solaris_env.world_model.world_model import COMPONENTS, abstract_modules
     return {name: nnx.split(m) for name, m in zip(COMPONENTS, abstract_modules(config))}
 
 

@@ -1,8 +1,8 @@
 """Few-step flow-matching samplers (docs/model.md §5.3): x0-prediction with fresh-noise re-noising.
 
-The model predicts a velocity ``v`` with ``x_t = (1 - sigma) * x0 + sigma * eps`` and ``v = eps - x0``
-(sigma = t / num_train_timesteps, t on the 0..1000 scale). Every step of a schedule
-``t_0 > t_1 > ... > t_n = 0`` does
+The flow and the step are ``flow_matching`` (``x_t = (1 - sigma) * x0 + sigma * eps``, ``v = eps - x0``,
+sigma = t / num_train_timesteps, t on the 0..1000 scale). Every step of a schedule
+``t_0 > t_1 > ... > t_n = 0`` does ``flow_matching.sampler_step``:
 
     v  = denoise_fn(z, t_s)
     x0 = z - sigma_s * v                                   # x0 prediction (f32)
@@ -29,6 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from solaris_env.world_model.config import SamplerConfig
+from solaris_env.world_model.flow_matching import NUM_TRAIN_TIMESTEPS, sampler_step, sigma_of_timestep
 
 DenoiseFn = Callable[[jax.Array, jax.Array], jax.Array]
 
@@ -54,7 +55,7 @@ def ar_schedule(cfg: SamplerConfig) -> np.ndarray:
     return np.asarray(steps + (0,), np.float32)
 
 
-def shifted_schedule(num_steps: int, shift: float, num_train_timesteps: int = 1000) -> np.ndarray:
+def shifted_schedule(num_steps: int, shift: float, num_train_timesteps: int = NUM_TRAIN_TIMESTEPS) -> np.ndarray:
     """N-step schedule: sigma_k = linspace(1, 0, N + 1)[:-1], sigma' = shift*sigma / (1 + (shift-1)*sigma),
     t = num_train_timesteps * sigma', then 0 appended -> (N + 1,) f32, decreasing from 1000 to 0."""
     if num_steps < 1:
@@ -84,8 +85,8 @@ def _check_timesteps(timesteps) -> np.ndarray:
 
 
 def sample_frame(denoise_fn: DenoiseFn, z: jax.Array, key: jax.Array, timesteps: Sequence[float],
-                 num_train_timesteps: int = 1000, unroll: bool = False, first_v: jax.Array | None = None,
-                 eta: float = 1.0) -> jax.Array:
+                 num_train_timesteps: int = NUM_TRAIN_TIMESTEPS, unroll: bool = False,
+                 first_v: jax.Array | None = None, eta: float = 1.0) -> jax.Array:
     """Run the x0 + fresh-noise rule from ``z`` (pure noise at timesteps[0]) down to t = 0.
 
     Args:
@@ -107,18 +108,11 @@ def sample_frame(denoise_fn: DenoiseFn, z: jax.Array, key: jax.Array, timesteps:
     t = _check_timesteps(timesteps)
     if not 0.0 <= eta <= 1.0:
         raise ValueError(f"eta must be in [0, 1], got {eta}")
-    scale = 1.0 / float(num_train_timesteps)
     keys = jax.random.split(key, t.shape[0] - 1)
 
     def update(z_t, v, t_now, t_next, k):
-        z_t32, v32 = z_t.astype(jnp.float32), v.astype(jnp.float32)
-        x0 = z_t32 - (t_now * scale) * v32
-        sigma_next = t_next * scale
-        eps = jax.random.normal(k, x0.shape, jnp.float32)
-        if eta != 1.0:  # a Python float: the spec's rule (eta = 1) is traced exactly as before
-            eps_hat = z_t32 + (1.0 - t_now * scale) * v32
-            eps = eta * eps + float(np.sqrt(1.0 - eta * eta)) * eps_hat
-        z_next = (1.0 - sigma_next) * x0 + sigma_next * eps
+        sigma, sigma_next = (sigma_of_timestep(s, num_train_timesteps) for s in (t_now, t_next))
+        z_next = sampler_step(z_t, v, sigma, sigma_next, jax.random.normal(k, z_t.shape, jnp.float32), eta)
         return z_next.astype(z_t.dtype)
 
     def body(z_t, step):
@@ -136,7 +130,7 @@ def sample_frame(denoise_fn: DenoiseFn, z: jax.Array, key: jax.Array, timesteps:
 
 
 def sample_bidirectional(denoise_fn: DenoiseFn, shape: tuple[int, ...], key: jax.Array,
-                         timesteps: Sequence[float], num_train_timesteps: int = 1000) -> jax.Array:
+                         timesteps: Sequence[float], num_train_timesteps: int = NUM_TRAIN_TIMESTEPS) -> jax.Array:
     """Sample all frames at once with the same rule (bidirectional model, e.g. x_BPFHWC).
 
     ``key`` is split into (initial noise, re-noising); returns x0 (f32) of ``shape``.

@@ -82,15 +82,14 @@ import jax.numpy as jnp
 import numpy as np
 from flax import nnx, struct
 
-from solaris_env.world_model import kv_cache, sampler
+from solaris_env.world_model import checkpoint, kv_cache, sampler
+from solaris_env.world_model.components import COMPONENTS, abstract_modules
 from solaris_env.world_model.conditioning import first_frame_cond_next, first_frame_cond_start
 from solaris_env.world_model.config import SamplerConfig, VAEConfig, WorldModelConfig, preset
 from solaris_env.world_model.dit import (ContextKV, WorldDiT, block_graphdef, from_stream, stack_blocks,
                                          timesteps_to_stream, to_stream, unstack_blocks)
 from solaris_env.world_model.image_encoder import ImageEncoder
 from solaris_env.world_model.vae import CausalVideoVAE
-
-COMPONENTS = ("dit", "vae", "image_encoder")
 
 # ---------------------------------------------------------------------------------------------
 # Helpers (pure)
@@ -449,7 +448,6 @@ class WorldModel:
     def load(cls, path, config: WorldModelConfig | None = None) -> "WorldModel":
         """Load our checkpoint (``save``) or an official orbax directory (``solaris.pt``, ``vae.pt``,
         ``clip.pt``; ``config`` defaults to the solaris preset). See ``checkpoint``."""
-        from solaris_env.world_model import checkpoint
         config, modules = checkpoint.load_modules(path, config)
         return cls(config, *modules)
 
@@ -462,7 +460,6 @@ class WorldModel:
 
     def save(self, path) -> None:
         """Write our checkpoint format (safetensors + JSON config, atomically)."""
-        from solaris_env.world_model import checkpoint
         checkpoint.save(path, self._cfg, dict(zip(COMPONENTS, self.params)))
 
     # -- properties -----------------------------------------------------------------------------------
@@ -613,16 +610,9 @@ def _initializer(config: WorldModelConfig):
     return graphdefs, jax.jit(make)
 
 
-def abstract_modules(config: WorldModelConfig) -> tuple:
-    """(dit, vae, image_encoder) with abstract (shape-only) parameters: no compute, no memory."""
-    return (nnx.eval_shape(lambda: WorldDiT(config, rngs=nnx.Rngs(0))),
-            nnx.eval_shape(lambda: CausalVideoVAE(config.vae, rngs=nnx.Rngs(0))),
-            nnx.eval_shape(lambda: ImageEncoder(config.image_encoder, rngs=nnx.Rngs(0))))
-
-
 def param_count(model: WorldModel) -> dict[str, int]:
     return {name: sum(math.prod(v.shape) for v in jax.tree.leaves(p)) for name, p in zip(COMPONENTS, model.params)}
 
 
-__all__ = ["WorldModel", "WorldState", "Programs", "StepParams", "abstract_modules", "encoder_receptive_field",
-           "steady_cond_index", "frames_to_model", "frames_to_uint8", "param_count", "COMPONENTS"]
+__all__ = ["WorldModel", "WorldState", "Programs", "StepParams", "encoder_receptive_field", "steady_cond_index",
+           "frames_to_model", "frames_to_uint8", "param_count"]

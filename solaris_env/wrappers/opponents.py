@@ -149,3 +149,12 @@ def make_opponent(opponent: Any = "random") -> Opponent:
         return PolicyOpponent(opponent)
     raise TypeError(f"opponent must be a name in {sorted(OPPONENTS)}, an Opponent or a callable; "
                     f"got {type(opponent).__name__}")
+
+
+def make_opponents(env: Any, opponent: Any, seed: int) -> dict[str, Opponent]:
+    """One fresh ``make_opponent(opponent)`` per agent of ``env`` (unwrapped), each reset for a new episode with
+    its own seed drawn from ``seed``."""
+    out = {a: make_opponent(opponent) for a in env.possible_agents}
+    for a, s in zip(env.possible_agents, np.random.default_rng(seed).integers(2**31 - 1, size=len(out))):
+        out[a].reset(env, a, int(s))
+    return out

@@ -123,11 +123,11 @@ def make_dream(agent: str | None = None, opponent: Any = "random", resize: Any =
 def make_real(agent: str | None = None, opponent: Any = "bot", resize: Any = None, frame_stack: int | None = None,
               flatten: str | None = None, camera_bins: int = 11, camera_max_deg: float = 10.0,
               flatten_keys: Any = None, flatten_camera_axes: Any = ("pitch", "yaw"), **real_kwargs) -> gym.Env:
-    """``solaris_env/Real-v0``: ``RealParallelEnv(**real_kwargs)`` seen by one agent; the others are scripted
-    engine bots by default."""
-    from solaris_env.real_env import RealParallelEnv
+    """``solaris_env/Real-v0``: ``make_real_env(**real_kwargs)`` (``real_backends``: the voxel engine, or with
+    ``backend="minecraft"`` real Minecraft) seen by one agent; the others are scripted engine bots by default."""
+    from solaris_env.real_backends import make_real_env
 
-    return _wrap(RealParallelEnv(**real_kwargs), agent, opponent, resize, frame_stack, flatten, camera_bins,
+    return _wrap(make_real_env(**real_kwargs), agent, opponent, resize, frame_stack, flatten, camera_bins,
                  camera_max_deg, flatten_keys, flatten_camera_axes)
 
 

@@ -39,6 +39,9 @@ def test_ppo_real_writes_checkpoints_that_load_and_act(real_run, real):
     assert meta["env"] == "real" and meta["task"] == "face_partner" and meta["step"] == 64
     assert meta["frames_per_step"] == 4 and meta["obs_shape"] == [36, 36, 3]
     assert meta["codec"]["keys"] == [] and meta["codec"]["camera_axes"] == ["yaw"]  # face_partner: turn only
+    # the run's arguments name its directory without the machine's folders (agents.ppo_common.args_record)
+    assert meta["args"]["out"] == "/".join(real_run.parts[-2:])
+    assert json.loads((real_run / "args.json").read_text())["out"] == meta["args"]["out"]
 
     policy = make_policy(f"ppo:{checkpoints / 'step_000000064.zip'}")
     assert isinstance(policy, PPOPolicy) and policy.model.num_timesteps == 64
@@ -88,7 +91,10 @@ def test_evaluate_end_to_end(real_run, tmp_path):
     results = evaluate.main(["--preset", "test", "--policies", "random", "--ppo-checkpoints", str(ckpt),
                              "--episodes", "2", "--max-steps", "3", "--resamples", "200", "--out", str(out)])
     saved = json.loads(out.read_text())
-    assert [p["name"] for p in saved["policies"]] == ["random", f"ppo:{ckpt}"]
+    # the checkpoint is named without the machine's directories (solaris_env.paths), in the JSON and the legend
+    assert [p["name"] for p in saved["policies"]] == ["random", "ppo:" + "/".join(ckpt.parts[-3:])]
+    assert str(tmp_path) not in out.read_text() and str(real_run) not in out.read_text()
+    assert out.with_suffix(".png").is_file()
     for row in saved["policies"]:
         for kind in ("dream", "real", "real_judge"):
             s = row[kind]
@@ -115,6 +121,7 @@ def test_transfer_end_to_end(real_run, tmp_path):
     for row in saved["returns"].values():
         assert row["n"] == 2 and row["ci_low"] <= row["mean"] <= row["ci_high"]
     assert saved["returns"]["dream_ppo"]["trained_steps"] == 64  # a run directory stands for its last checkpoint
+    assert str(real_run) not in out.read_text() and str(tmp_path) not in out.read_text()  # solaris_env.paths
     assert saved["setup"]["frames_per_step"] == 4
 
 

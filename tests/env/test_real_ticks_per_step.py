@@ -5,7 +5,7 @@ the task once."""
 import numpy as np
 import pytest
 
-from solaris_env.spaces import CAMERA_TICK_LIMIT_DEG, ONCE_KEYS, noop, tick_actions
+from solaris_env.spaces import CAMERA_TICK_LIMIT_DEG, ONCE_KEYS, noop, step_ticks
 
 
 def act(dyaw: float = 0.0, **keys) -> dict:
@@ -15,9 +15,9 @@ def act(dyaw: float = 0.0, **keys) -> dict:
     return a
 
 
-def test_tick_actions_hold_movement_send_once_keys_once_and_spread_the_camera():
-    ticks = tick_actions(act(12.0, forward=1, jump=1, attack=1, **{"hotbar.2": 1}), 4)
-    assert len(ticks) == 4 and ticks[0]["attack"] == 1
+def test_step_ticks_hold_movement_send_once_keys_once_and_spread_the_camera():
+    ticks, pending = step_ticks(act(12.0, forward=1, jump=1, attack=1, **{"hotbar.2": 1}), 4)
+    assert len(ticks) == 4 and ticks[0]["attack"] == 1 and np.array_equal(pending, [0.0, 0.0])
     yaw = [t["camera"][1] for t in ticks]  # at most CAMERA_TICK_LIMIT_DEG a tick, from the first tick on
     assert yaw[0] == np.float32(CAMERA_TICK_LIMIT_DEG) and yaw[2:] == [0.0, 0.0]
     assert yaw[1] == pytest.approx(12.0 - CAMERA_TICK_LIMIT_DEG, abs=1e-5)
@@ -25,9 +25,10 @@ def test_tick_actions_hold_movement_send_once_keys_once_and_spread_the_camera():
         assert t["forward"] == 1 and t["jump"] == 1
         assert all(t[k] == 0 for k in ONCE_KEYS)
     with pytest.raises(ValueError, match="ticks per step"):
-        tick_actions(noop(), 0)
-    with pytest.raises(ValueError, match="step_ticks"):  # 40 deg does not fit in 4 ticks: never dropped
-        tick_actions(act(40.0), 4)
+        step_ticks(noop(), 0)
+    ticks, pending = step_ticks(act(40.0), 4)  # 40 deg does not fit in 4 ticks: the rest is carried, never dropped
+    assert all(t["camera"][1] == np.float32(CAMERA_TICK_LIMIT_DEG) for t in ticks)
+    assert pending[1] == pytest.approx(40.0 - 4 * CAMERA_TICK_LIMIT_DEG, abs=1e-5)
 
 
 def test_a_step_of_k_ticks_equals_k_single_ticks(real):
@@ -41,7 +42,7 @@ def test_a_step_of_k_ticks_equals_k_single_ticks(real):
     for actions in script:
         obs_k, *_ , infos_k = multi.step(actions)
         assert multi.step_frames().shape == (2, k, 36, 36, 3)
-        per_agent = {a: tick_actions(x, k) for a, x in actions.items()}
+        per_agent = {a: step_ticks(x, k)[0] for a, x in actions.items()}  # every turn fits: nothing pending
         frames = []
         for t in range(k):
             obs_1, *_ , infos_1 = single.step({a: ticks[t] for a, ticks in per_agent.items()})

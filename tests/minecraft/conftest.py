@@ -6,7 +6,7 @@ import os
 
 import pytest
 
-from solaris_env.engine.minecraft import setup_problem
+from solaris_env.engine.minecraft.install import setup_problem
 
 
 def in_ci() -> bool:

@@ -8,7 +8,8 @@ import subprocess
 import pytest
 
 from solaris_env.engine.bots.controller import rotation_profile
-from solaris_env.engine.minecraft import NODE_DIR, setup_problem
+from solaris_env.engine.minecraft import NODE_DIR
+from solaris_env.engine.minecraft.install import setup_problem
 
 PROBLEM = setup_problem()
 pytestmark = [pytest.mark.minecraft,

@@ -1,4 +1,5 @@
-"""RealParallelEnv(backend="minecraft"): the real env on real Minecraft (skipped unless the backend is set up).
+"""make_real_env(backend="minecraft") (MinecraftParallelEnv): the real env on real Minecraft (skipped unless the
+backend is set up).
 
 Two games are started in this module (~15 s each with the chunk-meshing warm-up), one after the other."""
 
@@ -12,9 +13,11 @@ import numpy as np
 import pytest
 from pettingzoo.test import parallel_api_test
 
-from solaris_env.engine.minecraft import setup_problem
+from solaris_env.engine.minecraft.install import setup_problem
 from solaris_env.engine.minecraft.records import EYE_HEIGHT, project_box
 from solaris_env.engine.minecraft.supervisor import _group_alive
+from solaris_env.minecraft_env import MinecraftParallelEnv
+from solaris_env.real_backends import make_real_env
 from solaris_env.real_env import RealParallelEnv
 from solaris_env.spaces import CAMERA_TICK_LIMIT_DEG, noop
 
@@ -27,18 +30,18 @@ SIZE = 64
 
 def test_bad_backend_names_the_field_and_the_choices():
     with pytest.raises(ValueError, match=r"backend must be one of \['voxel', 'minecraft'\], got 'unreal'"):
-        RealParallelEnv(backend="unreal")
-    assert type(RealParallelEnv()) is RealParallelEnv  # the default stays the voxel engine
+        make_real_env(backend="unreal")
+    assert type(make_real_env()) is RealParallelEnv  # the default stays the voxel engine
 
 
 @needs_minecraft
 def test_unsupported_options_raise_clear_errors():
     with pytest.raises(ValueError, match="hud"):
-        RealParallelEnv(backend="minecraft", hud=True)
+        make_real_env(backend="minecraft", hud=True)
     with pytest.raises(ValueError, match="world"):
-        RealParallelEnv(backend="minecraft", world="normal")
-    env = RealParallelEnv(backend="minecraft")  # nothing is started before reset
-    assert env.bridge is None
+        make_real_env(backend="minecraft", world="normal")
+    env = make_real_env(backend="minecraft")  # nothing is started before reset
+    assert type(env) is MinecraftParallelEnv and env.bridge is None
     with pytest.raises(NotImplementedError, match="engine_state"):
         env.engine_state()
     with pytest.raises(NotImplementedError, match="engine_state"):
@@ -48,7 +51,7 @@ def test_unsupported_options_raise_clear_errors():
 
 @pytest.fixture(scope="module")
 def env():
-    env = RealParallelEnv(backend="minecraft", resolution=SIZE, max_steps=60, task="see_other_player")
+    env = make_real_env(backend="minecraft", resolution=SIZE, max_steps=60, task="see_other_player")
     yield env
     env.close()
 
@@ -141,7 +144,7 @@ def test_looking_at_the_other_player_shows_it(env):
 @needs_minecraft
 @pytest.mark.timeout(300)
 def test_ticks_per_step_late_ticks_are_reported_and_close_leaves_no_processes():
-    env = RealParallelEnv(backend="minecraft", resolution=36, ticks_per_step=4)
+    env = make_real_env(backend="minecraft", resolution=36, ticks_per_step=4)
     try:
         env.reset(seed=0)
         pids = env.bridge.pids()
@@ -177,7 +180,7 @@ def test_ticks_per_step_late_ticks_are_reported_and_close_leaves_no_processes():
 @needs_minecraft
 @pytest.mark.timeout(300)
 def test_attack_hits_the_player_in_reach():
-    env = RealParallelEnv(backend="minecraft", resolution=36, spawn_distance=(1.5, 2.0))
+    env = make_real_env(backend="minecraft", resolution=36, spawn_distance=(1.5, 2.0))
     try:
         _, infos = env.reset(seed=0)
         _step(env, {"Alpha": _turn_to(infos["Alpha"], infos["Bravo"]["pos"] + [0.0, 1.0, 0.0])})
@@ -225,7 +228,7 @@ def _until(env, action: dict, key: str, max_steps: int) -> tuple[int, dict, dict
 def test_attack_digs_and_use_places_and_reset_restores_the_world():
     from solaris_env.engine.blocks import Block
 
-    env = RealParallelEnv(backend="minecraft", resolution=SIZE)
+    env = make_real_env(backend="minecraft", resolution=SIZE)
     try:
         _, infos = env.reset(seed=0)
         cell = _ground_in_front(infos["Alpha"])

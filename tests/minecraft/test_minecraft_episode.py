@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from solaris_env.engine import eval_protocol as ep
-from solaris_env.engine.minecraft import setup_problem
+from solaris_env.engine.minecraft.install import setup_problem
 
 PROBLEM = setup_problem()
 pytestmark = [

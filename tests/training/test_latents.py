@@ -102,3 +102,16 @@ def test_build_with_threads_writes_the_same_cache_as_one_worker(root, cfg, modul
         np.testing.assert_array_equal(many._latents[video], latents)
     with pytest.raises(ValueError, match="workers must be >= 1"):
         latent_clips(dataset, cfg, modules[1], tmp_path / "bad", canonical_dir=root / "duet").build(workers=0)
+
+
+def test_build_stops_at_its_time_limit_and_the_rest_encode_on_first_use(root, cfg, modules, tmp_path):
+    import time
+
+    dataset = D.DuetDataset(root, "train", obs_size=(32, 32))
+    late = latent_clips(dataset, cfg, modules[1], tmp_path / "late", canonical_dir=root / "duet")
+    assert late.build(workers=1, until=time.time() - 1) == 0  # past the limit: nothing started
+    full = latent_clips(dataset, cfg, modules[1], tmp_path / "full", canonical_dir=root / "duet")
+    full.build(workers=1)
+    segment = D.SegmentMP(dataset.valid_ids[0], 8, 8)
+    for a, b in zip(late.load(segment, 9), full.load(segment, 9)):  # encoded on demand, the same latents
+        np.testing.assert_array_equal(a, b)

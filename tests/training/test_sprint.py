@@ -22,7 +22,7 @@ def test_model():
 
 
 def _params(model) -> dict:
-    from solaris_env.world_model.world_model import COMPONENTS
+    from solaris_env.world_model.components import COMPONENTS
 
     return dict(zip(COMPONENTS, model.params))
 
@@ -110,7 +110,7 @@ def test_growing_stream_picks_up_the_episodes_written_meanwhile(tiny_duet, tmp_p
     import time
 
     from solaris_env.world_model.config import preset
-    from training import sprint
+    from training import growing_data
 
     src, dst = tiny_duet / "duet" / "train", tmp_path / "duet" / "train"
     dst.mkdir(parents=True)
@@ -126,10 +126,10 @@ def test_growing_stream_picks_up_the_episodes_written_meanwhile(tiny_duet, tmp_p
         move_in(alpha, commit=False)
         move_in(alpha, commit=True)
     move_in(alphas[2], commit=False)
-    n_streams = len(sprint.STREAMS)
+    n_streams = len(growing_data.STREAMS)
     cfg = preset("test")
-    dataset, sampler = sprint.growing_stream(tmp_path, cfg, 9, seed=0, rescan_s=0.05, single_player=False)
-    players, player_sampler = sprint.growing_stream(tmp_path, cfg, 9, seed=0, rescan_s=0.05, single_player=True)
+    dataset, sampler = growing_data.growing_stream(tmp_path, cfg, 9, seed=0, rescan_s=0.05, single_player=False)
+    players, player_sampler = growing_data.growing_stream(tmp_path, cfg, 9, seed=0, rescan_s=0.05, single_player=True)
     assert dataset.valid_ids == [0, 1] and sampler.state_dict()["num_candidates"] == 2
     time.sleep(0.1)
     sampler.next()
@@ -143,7 +143,7 @@ def test_growing_stream_picks_up_the_episodes_written_meanwhile(tiny_duet, tmp_p
     assert players.valid_ids == list(range(6)) and player_sampler.state_dict()["num_candidates"] == 6
     np.testing.assert_array_equal(players.episode(5).act_T25, dataset.recordings(2)[1].act_T25)
     assert players.episode(4).video == dataset.recordings(2)[0].video
-    del sprint.STREAMS[n_streams:]
+    del growing_data.STREAMS[n_streams:]
 
 
 @pytest.fixture(scope="module")
@@ -207,7 +207,9 @@ def test_sprint_trains_while_the_engine_records_and_keeps_its_time(sprints):
 @pytest.mark.slow
 def test_a_sprint_from_a_sprint_continues_its_lineage(sprints):
     a, b = _lineages(sprints)
-    assert b["generation"] == 2 and b["init"]["model"] == str(sprints / "a" / "model")
+    # the lineage names the init model without the machine's directories (solaris_env.paths.portable_text)
+    assert b["generation"] == 2 and b["init"]["model"] == "/".join((sprints / "a" / "model").parts[-3:])
+    assert not any(arg.startswith("/") for arg in a["command"] + b["command"]), (a["command"], b["command"])
     assert b["init"]["lineage"] == a
     assert b["collect"]["seed"] == a["collect"]["seed"] + 1000  # new episodes for the continued model
     assert [s["stage"] for s in b["stages"] if s["status"] == "ran"] == ["mp-causal"]

@@ -17,8 +17,9 @@ import pytest
 from flax import nnx
 
 from solaris_env.world_model import checkpoint, official
+from solaris_env.world_model.components import COMPONENTS, abstract_modules
 from solaris_env.world_model.config import DiTConfig, WorldModelConfig, preset
-from solaris_env.world_model.world_model import WorldModel, abstract_modules
+from solaris_env.world_model.world_model import WorldModel
 
 sys.path.insert(0, str(pathlib.Path(__file__).parent))
 from test_world_model import random_model  # noqa: E402  (shared random-weight builder)
@@ -272,7 +273,6 @@ def test_float16_storage_round_trips_within_half_precision(tmp_path):
     import numpy as np
 
     from solaris_env.world_model import checkpoint
-    from solaris_env.world_model.world_model import COMPONENTS, WorldModel
 
     model = WorldModel.from_preset("test", seed=0)
     params = dict(zip(COMPONENTS, model.params))

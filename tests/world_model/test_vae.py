@@ -56,7 +56,7 @@ def test_solaris_preset_param_count():
     assert num_params(abstract) == 126_892_531
 
 
-@pytest.mark.parametrize("preset,T", [("solaris", 5), ("tiny", 9), ("test", 1)])
+@pytest.mark.parametrize("preset,T", [("solaris", 5), ("tiny", 9), ("tiny16", 9), ("test", 1)])
 def test_preset_shapes_abstract(preset, T):
     cfg = WorldModelConfig.__dict__[preset].__func__(WorldModelConfig)
     abstract = nnx.eval_shape(lambda: CausalVideoVAE(cfg.vae, rngs=nnx.Rngs(0)))
@@ -70,6 +70,13 @@ def test_preset_shapes_abstract(preset, T):
 def test_tiny_is_64px_to_8x8x16_with_temporal_4():
     cfg = WorldModelConfig.tiny()
     assert (cfg.latent_height, cfg.latent_width, cfg.latent_channels, cfg.vae.temporal_factor) == (8, 8, 16, 4)
+
+
+def test_tiny16_is_64px_to_16x16x16_with_temporal_4_and_keeps_16_tokens():
+    cfg, tiny = WorldModelConfig.tiny16(), WorldModelConfig.tiny()
+    assert (cfg.latent_height, cfg.latent_width, cfg.latent_channels, cfg.vae.temporal_factor) == (16, 16, 16, 4)
+    assert cfg.tokens_per_frame == tiny.tokens_per_frame == 16
+    assert cfg.dit.camera_warp == tuple(2 * w for w in tiny.dit.camera_warp)  # latent pixels per degree
 
 
 def test_decoder_base_dim_changes_only_the_decoder():

@@ -15,10 +15,11 @@ from flax import nnx
 
 from solaris_env.world_model import kv_cache
 from solaris_env.world_model.action_module import action_windows, left_pad_actions
+from solaris_env.world_model.components import abstract_modules
 from solaris_env.world_model.conditioning import first_frame_cond
 from solaris_env.world_model.config import SamplerConfig, WorldModelConfig
-from solaris_env.world_model.world_model import (Programs, WorldModel, WorldState, abstract_modules,
-                                                 encoder_receptive_field, frames_to_model, steady_cond_index)
+from solaris_env.world_model.world_model import (Programs, WorldModel, WorldState, encoder_receptive_field,
+                                                 frames_to_model, steady_cond_index)
 
 B = 2
 

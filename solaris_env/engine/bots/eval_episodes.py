@@ -21,7 +21,7 @@ import numpy as np
 from solaris_env.engine import constants as C
 from solaris_env.engine.blocks import Block
 from solaris_env.engine.bots.controller import MOVE_KEYS, REVERSE, Actions, Bot, act
-from solaris_env.engine.bots.registry import EpisodeSpec, register
+from solaris_env.engine.bots.spec import EpisodeSpec
 from solaris_env.engine.physics import horizontal_axes, pitch_to, yaw_to
 from solaris_env.engine.world import World
 from solaris_env.engine.worldgen import WorldConfig
@@ -413,15 +413,17 @@ def turn_to_look_opposite_eval(bot: Bot) -> Actions:
 
 
 # ---------------------------------------------------------------------------------------------
-# Registration (spawn distances of the reference classes; typical length 60 s)
+# Episode types (spawn distances of the reference classes; typical length 60 s)
 # ---------------------------------------------------------------------------------------------
 
-register(EpisodeSpec("rotationEval", "Movement", 60, 10, 12, rotation_eval, is_eval=True, world="flat"))
-register(EpisodeSpec("translationEval", "Movement", 60, 10, 12, translation_eval, is_eval=True, world="flat"))
-register(EpisodeSpec("oneLooksAwayEval", "Grounding", 60, 10, 12, one_looks_away_eval, is_eval=True, world="flat"))
-register(EpisodeSpec("bothLookAwayEval", "Memory", 60, 10, 12, both_look_away_eval, is_eval=True, world="flat"))
-register(EpisodeSpec("structureEval", "Building", 60, 6, 6, structure_eval, is_eval=True, world="flat"))
-register(EpisodeSpec("turnToLookEval", "Consistency", 60, 4, 4, turn_to_look_eval, setup=turn_to_look_setup,
-                     is_eval=True, world="normal"))
-register(EpisodeSpec("turnToLookOppositeEval", "Consistency", 60, 4, 4, turn_to_look_opposite_eval,
-                     setup=turn_to_look_setup, is_eval=True, world="normal"))
+EPISODE_TYPES = (
+    EpisodeSpec("rotationEval", "Movement", 60, 10, 12, rotation_eval, is_eval=True, world="flat"),
+    EpisodeSpec("translationEval", "Movement", 60, 10, 12, translation_eval, is_eval=True, world="flat"),
+    EpisodeSpec("oneLooksAwayEval", "Grounding", 60, 10, 12, one_looks_away_eval, is_eval=True, world="flat"),
+    EpisodeSpec("bothLookAwayEval", "Memory", 60, 10, 12, both_look_away_eval, is_eval=True, world="flat"),
+    EpisodeSpec("structureEval", "Building", 60, 6, 6, structure_eval, is_eval=True, world="flat"),
+    EpisodeSpec("turnToLookEval", "Consistency", 60, 4, 4, turn_to_look_eval, setup=turn_to_look_setup,
+                is_eval=True, world="normal"),
+    EpisodeSpec("turnToLookOppositeEval", "Consistency", 60, 4, 4, turn_to_look_opposite_eval,
+                setup=turn_to_look_setup, is_eval=True, world="normal"),
+)

@@ -19,8 +19,9 @@ from solaris_env.engine import constants as C
 from solaris_env.engine.blocks import Block, Item, item_name
 from solaris_env.engine.bots import registry
 from solaris_env.engine.bots.controller import Barrier, Bot, EpisodeAbort
+from solaris_env.engine.bots.spec import EpisodeSpec
 from solaris_env.engine.game import Game
-from solaris_env.engine.physics import Player, pitch_to, yaw_to
+from solaris_env.engine.physics import Player, face
 from solaris_env.engine.trace import Trace
 from solaris_env.engine.world import World
 from solaris_env.engine.worldgen import WorldConfig, generate
@@ -112,12 +113,6 @@ def give(p: Player, item: int, count: int = 1) -> None:
             return
 
 
-def face(p: Player, target: Player) -> None:
-    """Set the camera straight onto another player (setup happens before recording)."""
-    p.yaw = yaw_to(p.pos, target.pos) % (2 * math.pi)
-    p.pitch = pitch_to(p.pos, target.pos)
-
-
 def make_players(feet: list[np.ndarray]) -> list[Player]:
     """Players at the given feet positions with the reference's start kit (64 stone, diamond
     pickaxe/shovel/axe, an empty hand), each facing the next one."""
@@ -168,7 +163,7 @@ def make_record(game: Game, i: int, action_record: dict, t: int, cfg: EpisodeCon
     }
 
 
-def setup_episode(cfg: EpisodeConfig, spec: registry.EpisodeSpec, world_seed: int, shared: int
+def setup_episode(cfg: EpisodeConfig, spec: EpisodeSpec, world_seed: int, shared: int
                   ) -> tuple[Game, list[Bot]]:
     """The episode's world, players (spawned apart), game and bots, with the type's setup applied."""
     world = generate(cfg.world_kind, world_seed, variant=cfg.instance, cfg=cfg.world)

@@ -17,7 +17,8 @@ from typing import Any, Self
 
 import numpy as np
 
-from solaris_env.engine.minecraft import MINECRAFT_VERSION, NODE_DIR, setup_problem
+from solaris_env.engine.minecraft import MINECRAFT_VERSION, NODE_DIR
+from solaris_env.engine.minecraft.install import setup_problem
 from solaris_env.engine.minecraft.records import CONTROL_KEYS
 from solaris_env.engine.minecraft.supervisor import ProcessError, Supervisor, start_xvfb
 

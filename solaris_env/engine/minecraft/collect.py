@@ -21,7 +21,8 @@ from typing import Self
 
 import numpy as np
 
-from solaris_env.engine.minecraft import MINECRAFT_VERSION, NODE_DIR, setup_problem
+from solaris_env.engine.minecraft import MINECRAFT_VERSION, NODE_DIR
+from solaris_env.engine.minecraft.install import setup_problem
 from solaris_env.engine.minecraft.records import (
     MAX_BURST_FRACTION,
     build_records,

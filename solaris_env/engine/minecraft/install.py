@@ -14,8 +14,10 @@ import shutil
 import subprocess
 import sys
 
-from solaris_env.engine.minecraft import NATIVE_MODULES, NODE_DIR
+from solaris_env.engine.minecraft import NODE_DIR
 
+# Node packages whose presence (with native builds) means the backend is set up.
+NATIVE_MODULES = ("canvas", "gl", "node-canvas-webgl", "prismarine-viewer", "mineflayer", "flying-squid")
 NODE_MAJOR_MIN = 20
 DEBIAN_PACKAGES = ("build-essential", "pkg-config", "python3", "libxi-dev", "libglu1-mesa-dev", "libglew-dev",
                    "libcairo2-dev", "libpango1.0-dev", "libjpeg-dev", "libgif-dev", "librsvg2-dev", "xvfb")
@@ -72,6 +74,12 @@ def check_installed() -> list[str]:
     if (NODE_DIR / "node_modules/flying-squid").is_dir() and not patch_applied():
         problems.append("the flying-squid player-list fix is not applied (run `solaris-engine setup-minecraft`)")
     return problems
+
+
+def setup_problem() -> str | None:
+    """None when the backend is installed and runnable here, else a sentence naming what is missing."""
+    missing = check_installed()
+    return "; ".join(missing) if missing else None
 
 
 def _run(argv: list[str], what: str, cwd=None, env=None) -> None:
