@@ -202,11 +202,12 @@ def test_merge_ticks():
     ticks = [noop() for _ in range(4)]
     ticks[0]["forward"] = ticks[1]["forward"] = 1  # held on half of the ticks: held
     ticks[0]["jump"] = 1  # one tick of a held key: not held
-    ticks[3]["attack"] = 1  # a once-key on any tick
+    ticks[3]["use"] = 1  # a once-key on any tick
+    ticks[2]["attack"] = 1  # attack is held (digging): one tick of four is not held
     for t in ticks:
         t["camera"] = np.array([1.0, 9.0], np.float32)
     a = df.merge_ticks(ticks)
-    assert (a["forward"], a["jump"], a["attack"]) == (1, 0, 1)
+    assert (a["forward"], a["jump"], a["use"], a["attack"]) == (1, 0, 1, 0)
     assert a["camera"][0] == 4.0  # summed
     assert 34.37 < a["camera"][1] < 34.38  # clipped at what 4 ticks turn (4 x 8.594 deg): nothing carried over
     _, pending = step_ticks(a, 4)

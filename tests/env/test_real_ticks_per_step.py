@@ -22,7 +22,7 @@ def test_step_ticks_hold_movement_send_once_keys_once_and_spread_the_camera():
     assert yaw[0] == np.float32(CAMERA_TICK_LIMIT_DEG) and yaw[2:] == [0.0, 0.0]
     assert yaw[1] == pytest.approx(12.0 - CAMERA_TICK_LIMIT_DEG, abs=1e-5)
     for t in ticks[1:]:
-        assert t["forward"] == 1 and t["jump"] == 1
+        assert t["forward"] == 1 and t["jump"] == 1 and t["attack"] == 1  # held: digging needs every tick
         assert all(t[k] == 0 for k in ONCE_KEYS)
     with pytest.raises(ValueError, match="ticks per step"):
         step_ticks(noop(), 0)
