@@ -238,7 +238,10 @@ def _interrupted(args, delay_s, cwd):
     stderr, seconds from the signal to the exit)."""
     import signal
 
-    code = "import sys; from solaris_env.engine.cli import main; sys.exit(main(sys.argv[1:]))"
+    # Ctrl-C's default handler, as in a terminal: a test run started as a background job (`cmd &`) would
+    # otherwise pass SIGINT-ignored on to the child, whose handling then (rightly) changes nothing
+    code = ("import signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); "
+            "from solaris_env.engine.cli import main; sys.exit(main(sys.argv[1:]))")
     proc = subprocess.Popen([sys.executable, "-c", code, *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True, cwd=cwd)
     first = proc.stderr.readline()
