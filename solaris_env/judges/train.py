@@ -10,13 +10,19 @@
     solaris-engine collect --out $D/train_flat --episodes 60 --world flat --instances 10 \\
         --types lookAround walkLook orbit --resolution 64 --seed 1004 --test-fraction 0
         # all five flat surfaces (variant = instance mod 5: grass, snow, sand, red sand), pitch +-30 deg
+    solaris-engine collect --out $D/train_normal --episodes 60 --world normal --instances 10 \\
+        --types lookAround walkLook orbit --resolution 64 --seed 1005 --test-fraction 0
+    solaris-engine collect --out $D/train_normal2 --episodes 120 --world normal --instances 20 --instance-offset 20 \\
+        --types walkLookAway straightLineWalk chase orbit walkLook --resolution 64 --seed 1006 --test-fraction 0
+        # partners far away against trees and hills (the fidelity benchmark's normal starts)
     solaris-engine collect --out $D/heldout --eval --episodes 32 --resolution 64 --seed 2000
     OUT=solaris_env/assets/judges DATA="$D/train $D/train_ttl $D/train_duet"
     python -m solaris_env.judges.train --data $DATA --out $OUT --questions structure same_scenery
-    python -m solaris_env.judges.train --data $DATA $D/train_flat --out $OUT --questions visible position
+    python -m solaris_env.judges.train --data $DATA $D/train_flat $D/train_normal $D/train_normal2 --out $OUT \\
+        --questions visible position --steps 6000 --force --heldout $D/heldout
     python -m solaris_env.judges.train --data $DATA $D/train_tr --out $OUT --questions motion --steps 4000 \\
         --heldout $D/heldout
-    # the shipped weights: ~3-5 min per probe (2500 steps) on 2 shared CPU cores, motion ~6-8 min
+    # the shipped weights: ~3-8 min per probe on 2 shared CPU cores (visible/position 6000 steps: ~7 min each)
 
 Per question: build the examples (:mod:`dataset`), train a :class:`Probe` with class-balanced
 batches, left-right mirror augmentation (answers permuted by ``Question.flip_answers``) and brightness
@@ -249,7 +255,10 @@ def read_extra(path: Path) -> dict:
     from solaris_env.judges.probe import read_metadata
 
     extra = read_metadata(path)["extra"]
-    return {k: extra[k] for k in ("steps", "examples", "class_counts", "params", "wall_s", "seed", "data") if k in extra}
+    out = {k: extra[k] for k in ("steps", "examples", "class_counts", "params", "wall_s", "seed", "data") if k in extra}
+    if "data" in out:  # probes trained before paths were recorded portably
+        out["data"] = [portable_path(d) for d in out["data"]]
+    return out
 
 
 if __name__ == "__main__":
