@@ -8,7 +8,9 @@ interpreter's teardown, which could race XLA's compiler threads and crash ("Fata
 fault", seen when Ctrl-C hit a JAX compile). While the main thread sits in a long native call (an XLA compile does
 not return to Python for tens of seconds) the interrupt cannot be raised there: a watcher thread woken by the
 signal (``signal.set_wakeup_fd``) then ends the process the same way after ``INTERRUPT_GRACE_S`` seconds, or at
-once on a second Ctrl-C, killing this process's ``multiprocessing`` children first. Output files are written
+once on a second Ctrl-C, killing this process's ``multiprocessing`` children first. A Ctrl-C that lands where
+Python cannot raise it (a garbage-collector callback, a ``__del__``: "Exception ignored in ...") ends the process
+the same way at once (``sys.unraisablehook``). Output files are written
 atomically (staging directories, temporary names), so an interrupted run leaves no half file behind and a re-run
 resumes.
 
@@ -100,6 +102,13 @@ def interrupts_exit_cleanly(prog: str, grace_s: float = INTERRUPT_GRACE_S) -> It
         if not done.wait(grace_s):
             exit_interrupted(prog)
 
+    def unraisable(info) -> None:  # Ctrl-C landed where Python cannot raise it (a gc callback, a __del__)
+        if isinstance(info.exc_value, KeyboardInterrupt):
+            exit_interrupted(prog)
+        previous_hook(info)
+
+    previous_hook = sys.unraisablehook
+    sys.unraisablehook = unraisable
     watcher = threading.Thread(target=watch, name="interrupt-watcher", daemon=True)
     watcher.start()
     try:
@@ -107,6 +116,7 @@ def interrupts_exit_cleanly(prog: str, grace_s: float = INTERRUPT_GRACE_S) -> It
     except KeyboardInterrupt:
         exit_interrupted(prog)
     finally:
+        sys.unraisablehook = previous_hook
         done.set()
         signal.set_wakeup_fd(previous_fd)
         signal.signal(signal.SIGINT, previous_handler)

@@ -283,6 +283,7 @@ def test_a_main_thread_stuck_in_native_code_is_still_ended_by_ctrl_c(tmp_path):
     import signal
 
     code = ("import signal, sys, time\n"
+            "signal.signal(signal.SIGINT, signal.default_int_handler)\n"  # as in a terminal (see _interrupted)
             "from solaris_env.cli_support import interrupts_exit_cleanly\n"
             "with interrupts_exit_cleanly('stuck', grace_s=0.5):\n"
             "    signal.signal(signal.SIGINT, lambda *a: None)\n"
@@ -294,3 +295,22 @@ def test_a_main_thread_stuck_in_native_code_is_still_ended_by_ctrl_c(tmp_path):
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=30)
     assert proc.returncode == 130 and err.strip() == "stuck: interrupted" and time.perf_counter() - start < 5
+
+
+def test_ctrl_c_swallowed_by_a_gc_callback_still_ends_the_process_at_once():
+    """A KeyboardInterrupt raised where Python can only report it ("Exception ignored in ...": a garbage-collector
+    callback such as JAX's, a ``__del__``) ends the process at once with the one line, no traceback."""
+    code = ("import signal, sys, time\n"
+            "signal.signal(signal.SIGINT, signal.default_int_handler)\n"
+            "from solaris_env.cli_support import interrupts_exit_cleanly\n"
+            "class Bomb:\n"
+            "    def __del__(self):\n"
+            "        raise KeyboardInterrupt\n"
+            "with interrupts_exit_cleanly('gc', grace_s=30):\n"
+            "    Bomb()\n"
+            "    print('survived', flush=True)\n"
+            "    time.sleep(60)\n")
+    start = time.perf_counter()
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=30)
+    assert out.returncode == 130 and out.stderr.strip() == "gc: interrupted", out.stderr
+    assert "survived" not in out.stdout and time.perf_counter() - start < 10
