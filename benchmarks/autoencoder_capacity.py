@@ -60,7 +60,7 @@ def surface_of(groundtruth: dict) -> str:
 def held_out_clips(data_dir: Path, num_frames: int, per_episode: int, seed: int = 0) -> dict[str, np.ndarray]:
     """surface -> (N, num_frames, 64, 64, 3) uint8 clips from ``duet/test`` (both players, evenly spaced
     starts per video, the same every run)."""
-    from training.data import probe_video, read_frames
+    from training.video_io import probe_video, read_frames
 
     clips: dict[str, list] = {}
     test = data_dir / "duet" / "test"
@@ -103,8 +103,8 @@ def train_candidate(name: str, data_dir: Path, test: dict[str, np.ndarray], minu
     from flax import nnx
 
     from solaris_env.world_model.vae import CausalVideoVAE
-    from training import data as D
     from training import vae as V
+    from training.samplers import next_batch
     from training.step import TrainState, make_optimizer
     from training.train import duet_stream
 
@@ -116,7 +116,7 @@ def train_candidate(name: str, data_dir: Path, test: dict[str, np.ndarray], minu
     dataset, sampler = duet_stream(data_dir, cfg, num_frames, seed)
     t0, done, losses = time.perf_counter(), 0, []
     while True:
-        obs = D.next_batch(dataset, sampler, batch_size)["obs"]
+        obs = next_batch(dataset, sampler, batch_size)["obs"]
         video = jnp.asarray(np.swapaxes(obs, 1, 2).reshape((-1,) + obs.shape[1:2] + obs.shape[3:]))
         state, metrics = step_fn(state, video)
         done += 1

@@ -31,7 +31,7 @@ from pathlib import Path
 from solaris_env.paths import portable_path, portable_text
 
 RESULTS = Path(__file__).parent / "results" / "training_speed.json"
-STAGES = ("vae", "vae-decoder", "sp", "mp-bidirectional", "mp-causal", "self-forcing")  # training.train.STAGES
+STAGES = ("vae", "vae-decoder", "sp", "mp-bidirectional", "mp-causal", "self-forcing")  # stage_config.STAGES[:-1]
 
 
 def summarise_stage(metrics_path: Path) -> dict | None:
@@ -67,9 +67,9 @@ def measure(preset: str, steps: int, episodes: int, workdir: Path) -> tuple[dict
     stage's wall time is kept (its updates plus its fixed costs: compilation, latent cache, evaluations)."""
     from training import cli
     from training.collect import collect_if_missing
-    from training.train import load_stage_config
+    from training.stage_config import TrainingConfig, load_stage_config
 
-    cfg = load_stage_config(preset)
+    cfg = load_stage_config(preset).to_dict()
     shipped = json.loads(json.dumps(cfg))  # the budgets the projection is for
     cfg["collect"].update(episodes=episodes, test_fraction=0.25, seed=7)
     for stage in STAGES:
@@ -86,7 +86,7 @@ def measure(preset: str, steps: int, episodes: int, workdir: Path) -> tuple[dict
                                fsdp=False, steps=None)
     for stage in STAGES:
         t = time.perf_counter()
-        cli.run_stage(stage, args, cfg)
+        cli.run_stage(stage, args, TrainingConfig.from_dict(cfg, f"{preset} for the measurement"))
         walls[stage] = time.perf_counter() - t
     stages = summarise_run(out, cfg)
     for stage, s in stages.items():

@@ -1,6 +1,6 @@
-"""Tests for training/data.py (Duet + VPT loaders, samplers, batching, latent cache) and the engine's
-VPT export, on a tiny real dataset collected once per module (32x32, 2 walkLook episodes + 1
-rotationEval eval episode, in-process so the renderer compiles once)."""
+"""Tests for the training data (``training.video_io``, ``duet``, ``vpt``, ``samplers``, ``latent_cache``: loaders,
+samplers, batching, latent cache) and the engine's VPT export, on a tiny real dataset collected once per module
+(32x32, 2 walkLook episodes + 1 rotationEval eval episode, in-process so the renderer compiles once)."""
 
 import json
 import os
@@ -13,7 +13,29 @@ import pytest
 from solaris_env import spaces as sp
 from solaris_env.engine import cli
 from solaris_env.engine.vpt_export import records_to_vpt_ticks
-from training import data as td
+from training import video_io
+from training.duet import DuetDataset
+from training.episodes import (
+    BAD_JSON,
+    BAD_RENDER_TIME,
+    COUNT_MISMATCH,
+    DECODE_ERROR,
+    MISSING_FILE,
+    TOO_SHORT,
+    UNREADABLE_VIDEO,
+    EpisodeError,
+    SegmentMP,
+)
+from training.latent_cache import LatentCache
+from training.samplers import (
+    EvalSegments,
+    MultiplayerSegmentSampler,
+    SinglePlayerSegmentSampler,
+    make_batch,
+    next_batch,
+)
+from training.video_io import FrameReader, read_frames
+from training.vpt import VPTDataset, vpt_camera_to_mineflayer
 
 RES = 32
 NUM_FRAMES = 16
@@ -31,7 +53,7 @@ def root(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def duet(root):
-    return td.DuetDataset(root, "train")
+    return DuetDataset(root, "train")
 
 
 def _decode_all(path):
@@ -92,7 +114,7 @@ def test_segment_is_frames_after_actions(duet):
 
 
 def test_resize_uses_inter_area(root, duet):
-    small = td.DuetDataset(root, "train", obs_size=(16, 24), frame_cache_mb=0)
+    small = DuetDataset(root, "train", obs_size=(16, 24), frame_cache_mb=0)
     obs_TPHW3, _ = small.segment(0, 10, 10, 4)
     assert obs_TPHW3.shape == (4, 2, 16, 24, 3)
     frame = _decode_all(duet.recordings(0)[0].video)[11]
@@ -105,7 +127,7 @@ def test_frame_reader_cache_paths(duet):
     n_bytes = len(_decode_all(video1)) * RES * RES * 3
     expected = _decode_all(video1)[7:12]
     for cache_mb in (0, n_bytes / 2**20 / 2, n_bytes / 2**20 * 1.5):
-        reader = td.FrameReader(cache_mb=cache_mb)
+        reader = FrameReader(cache_mb=cache_mb)
         for path in (video1, video2, video1):
             frames_THW3 = reader.read(path, 7, 12)
         np.testing.assert_array_equal(frames_THW3, expected)
@@ -115,7 +137,7 @@ def test_frame_reader_cache_paths(duet):
 def test_eval_layout_and_view_changes_after_camera_action(root):
     """rotationEval: Alpha stands still, then turns for a few ticks; with the ``_camera`` eval layout
     the loader must show the view change at the frame *after* each camera action (frame t+1 <-> action t)."""
-    ds = td.DuetDataset(root, "test", name="eval/rotationEval")
+    ds = DuetDataset(root, "test", name="eval/rotationEval")
     assert ds.num_episodes == 1 and not ds.skipped
     rec1, _ = ds.recordings(0)
     assert rec1.video.name.endswith("_Alpha_instance_000_camera.mp4")
@@ -129,8 +151,8 @@ def test_eval_layout_and_view_changes_after_camera_action(root):
     assert turning.sum() == len(cam_T) and idle.sum() == 4
     assert diff_T[turning].min() > 2.0 > 1.0 > diff_T[idle].max(), (diff_T, turning)
 
-    segments = td.EvalSegments(root / "eval" / "eval_ids_rotationEval.json").segments()
-    assert len(segments) == 1 and isinstance(segments[0], td.SegmentMP)
+    segments = EvalSegments(root / "eval" / "eval_ids_rotationEval.json").segments()
+    assert len(segments) == 1 and isinstance(segments[0], SegmentMP)
     obs_TPHW3, _ = ds.load(segments[0], NUM_FRAMES)
     assert obs_TPHW3.shape == (NUM_FRAMES, 2, RES, RES, 3)
 
@@ -152,8 +174,8 @@ def test_render_time_alignment(root, tmp_path):
     data_dir, split = _copy(root, tmp_path)
     for bravo in split.glob("*_Bravo_instance_*[0-9].json"):
         _shift_render_times(bravo, 5 * 50)
-    ds = td.DuetDataset(data_dir, "train")
-    sampler = td.MultiplayerSegmentSampler(ds, NUM_FRAMES, seed=0)
+    ds = DuetDataset(data_dir, "train")
+    sampler = MultiplayerSegmentSampler(ds, NUM_FRAMES, seed=0)
     for seg in sampler.sample(40):
         times1_T, times2_T = ds.render_times(seg.episode_id)
         assert seg.start1 == seg.start2 + 5 and times1_T[seg.start1] == times2_T[seg.start2]
@@ -161,8 +183,8 @@ def test_render_time_alignment(root, tmp_path):
     # an offset off the tick grid: starts are bisect_left of a common time, at most one tick apart
     for bravo in split.glob("*_Bravo_instance_*[0-9].json"):
         _shift_render_times(bravo, -250 + 20)
-    ds = td.DuetDataset(data_dir, "train")
-    for seg in td.MultiplayerSegmentSampler(ds, NUM_FRAMES, seed=0).sample(40):
+    ds = DuetDataset(data_dir, "train")
+    for seg in MultiplayerSegmentSampler(ds, NUM_FRAMES, seed=0).sample(40):
         times1_T, times2_T = ds.render_times(seg.episode_id)
         assert abs(times1_T[seg.start1] - times2_T[seg.start2]) < 50
         assert seg.start1 + NUM_FRAMES < len(times1_T) and seg.start2 + NUM_FRAMES < len(times2_T)
@@ -170,7 +192,7 @@ def test_render_time_alignment(root, tmp_path):
 
 def test_sampler_is_seeded_and_resumable(duet):
     def sampler(seed=7):
-        return td.MultiplayerSegmentSampler(duet, NUM_FRAMES, seed=seed)
+        return MultiplayerSegmentSampler(duet, NUM_FRAMES, seed=seed)
 
     first = sampler()
     head = first.sample(5)
@@ -185,18 +207,18 @@ def test_sampler_is_seeded_and_resumable(duet):
         sampler(seed=8).load_state_dict(state)
     # batches resume with the sampler
     a, b = sampler(), sampler()
-    td.next_batch(duet, a, 2)
+    next_batch(duet, a, 2)
     b.load_state_dict(a.state_dict())
-    np.testing.assert_array_equal(td.next_batch(duet, a, 2)["obs"], td.next_batch(duet, b, 2)["obs"])
+    np.testing.assert_array_equal(next_batch(duet, a, 2)["obs"], next_batch(duet, b, 2)["obs"])
 
 
 def test_sampler_rank_partition(duet):
     for rank in (0, 1):
-        segs = td.MultiplayerSegmentSampler(duet, NUM_FRAMES, seed=0, rank=rank, num_ranks=2).sample(10)
+        segs = MultiplayerSegmentSampler(duet, NUM_FRAMES, seed=0, rank=rank, num_ranks=2).sample(10)
         assert {s.episode_id for s in segs} == {rank}
     too_long = 10_000
     with pytest.raises(ValueError, match="holds a segment"):
-        td.MultiplayerSegmentSampler(duet, too_long)
+        MultiplayerSegmentSampler(duet, too_long)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -230,40 +252,40 @@ def _time_goes_back(split):
 
 
 @pytest.mark.parametrize("corrupt, reason, num_episodes", [
-    (_truncate_mp4, td.UNREADABLE_VIDEO, 2),
-    (_bad_json, td.BAD_JSON, 2),
-    (_delete_bravo, td.MISSING_FILE, 1),
-    (_count_mismatch, td.COUNT_MISMATCH, 2),
-    (_time_goes_back, td.BAD_RENDER_TIME, 2),
+    (_truncate_mp4, UNREADABLE_VIDEO, 2),
+    (_bad_json, BAD_JSON, 2),
+    (_delete_bravo, MISSING_FILE, 1),
+    (_count_mismatch, COUNT_MISMATCH, 2),
+    (_time_goes_back, BAD_RENDER_TIME, 2),
 ])
 def test_corrupt_episode_is_skipped_and_counted(root, tmp_path, caplog, corrupt, reason, num_episodes):
     data_dir, split = _copy(root, tmp_path)
     corrupt(split)
-    ds = td.DuetDataset(data_dir, "train")
+    ds = DuetDataset(data_dir, "train")
     assert dict(ds.skipped) == {reason: 1}
     assert ds.num_episodes == num_episodes and len(ds.valid_ids) == 1
     assert reason in caplog.text
     # ids of the other episodes do not shift when a complete episode is corrupt
     assert ds.stems[ds.valid_ids[0]].startswith("batch_3_000001_Alpha")
-    assert {s.episode_id for s in td.MultiplayerSegmentSampler(ds, NUM_FRAMES).sample(5)} == set(ds.valid_ids)
+    assert {s.episode_id for s in MultiplayerSegmentSampler(ds, NUM_FRAMES).sample(5)} == set(ds.valid_ids)
 
 
 def test_decode_error_marks_episode_and_batch_continues(duet, monkeypatch):
-    ds = td.DuetDataset(duet.directory.parent.parent, "train", frame_cache_mb=0)
+    ds = DuetDataset(duet.directory.parent.parent, "train", frame_cache_mb=0)
     bad_video = ds.recordings(0)[1].video
-    real_read = td.read_frames
+    real_read = read_frames
 
     def flaky_read(path, start, stop, size=None):
         if path == bad_video:
-            raise td.EpisodeError(td.DECODE_ERROR, "simulated")
+            raise EpisodeError(DECODE_ERROR, "simulated")
         return real_read(path, start, stop, size)
 
-    monkeypatch.setattr(td, "read_frames", flaky_read)
-    sampler = td.MultiplayerSegmentSampler(ds, NUM_FRAMES, seed=0)
+    monkeypatch.setattr(video_io, "read_frames", flaky_read)
+    sampler = MultiplayerSegmentSampler(ds, NUM_FRAMES, seed=0)
     for _ in range(3):
-        batch = td.next_batch(ds, sampler, 2)
+        batch = next_batch(ds, sampler, 2)
         assert batch["obs"].shape == (2, NUM_FRAMES, 2, RES, RES, 3)
-    assert dict(ds.skipped) == {td.DECODE_ERROR: 1} and ds.valid_ids == [1]
+    assert dict(ds.skipped) == {DECODE_ERROR: 1} and ds.valid_ids == [1]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -273,7 +295,7 @@ def test_decode_error_marks_episode_and_batch_continues(duet, monkeypatch):
 
 def test_make_batch_pads_right(duet):
     short, full = duet.segment(0, 5, 5, 3), duet.segment(1, 5, 5, 5)
-    batch = td.make_batch([short, full], num_frames=6, batch_size=4)
+    batch = make_batch([short, full], num_frames=6, batch_size=4)
     assert batch["obs"].shape == (4, 6, 2, RES, RES, 3) and batch["act"].shape == (4, 6, 2, 25)
     assert batch["real_lengths"].tolist() == [3, 5, 0, 0]
     np.testing.assert_array_equal(batch["obs"][0, :3], short[0])
@@ -309,7 +331,7 @@ def test_vpt_round_trip_matches_mineflayer(root):
         records = _records(path)
         expected_T25 = sp.mineflayer_records_to_vectors(records)
         lines = [json.dumps(t) for t in records_to_vpt_ticks(records)]
-        got_T25 = td.vpt_camera_to_mineflayer(sp.vpt_jsonl_to_vectors(lines))
+        got_T25 = vpt_camera_to_mineflayer(sp.vpt_jsonl_to_vectors(lines))
         np.testing.assert_allclose(got_T25[1:], expected_T25[1:], rtol=0, atol=1e-5)
         slot0 = records[0]["inventory"]["quickBarSlot"]
         pulse = np.zeros(25, np.float32)
@@ -327,37 +349,37 @@ def test_round_trip_collapsed_keys():
             dict(base, mine=True), dict(base, place_block=True, attack=True, camera=[0.05, -0.02]),
             dict(base, **{"hotbar.3": True}), dict(base, forward=True, sprint=True, jump=True, left=True)]
     records = [{"action": a, "x": 0.0, "y": 64.0, "z": 0.0, "yaw": 0.0, "pitch": 0.0} for a in rows]
-    got_T25 = td.vpt_camera_to_mineflayer(sp.vpt_jsonl_to_vectors(records_to_vpt_ticks(records)))
+    got_T25 = vpt_camera_to_mineflayer(sp.vpt_jsonl_to_vectors(records_to_vpt_ticks(records)))
     np.testing.assert_allclose(got_T25, sp.mineflayer_records_to_vectors(records), rtol=0, atol=1e-5)
 
 
 def test_vpt_dataset_segments_and_sign(root, duet):
-    vpt = td.VPTDataset(root, "train")
+    vpt = VPTDataset(root, "train")
     assert vpt.num_episodes == 4 and not vpt.skipped
     obs_T1HW3, act_T125 = vpt.segment(2, 30, NUM_FRAMES)  # episode 2 = Alpha of Duet episode 1
     assert obs_T1HW3.shape == (NUM_FRAMES, 1, RES, RES, 3) and act_T125.shape == (NUM_FRAMES, 1, 25)
     duet_obs, duet_act = duet.segment(1, 30, 30, NUM_FRAMES)
     np.testing.assert_array_equal(obs_T1HW3[:, 0], duet_obs[:, 0])
     np.testing.assert_allclose(act_T125[:, 0], duet_act[:, 0], atol=1e-6)
-    reference = td.VPTDataset(root, "train", reference_camera_sign=True)
+    reference = VPTDataset(root, "train", reference_camera_sign=True)
     full = reference.episode(2).act_T25
     np.testing.assert_allclose(full[:, 23:], -vpt.episode(2).act_T25[:, 23:], atol=1e-6)
     np.testing.assert_array_equal(full[:, :23], vpt.episode(2).act_T25[:, :23])
 
     lengths = [vpt.episode(i).length for i in vpt.valid_ids]
-    sampler = td.SinglePlayerSegmentSampler(vpt, max(lengths) - 1, seed=0)  # only start 0 of the longest fits
+    sampler = SinglePlayerSegmentSampler(vpt, max(lengths) - 1, seed=0)  # only start 0 of the longest fits
     assert {(s.episode_id, s.start) for s in sampler.sample(8)} <= {(i, 0) for i, n in enumerate(lengths)
                                                                     if n == max(lengths)}
-    assert sampler.skipped[td.TOO_SHORT] == lengths.count(min(lengths))
-    sampler = td.SinglePlayerSegmentSampler(vpt, NUM_FRAMES, seed=1)
+    assert sampler.skipped[TOO_SHORT] == lengths.count(min(lengths))
+    sampler = SinglePlayerSegmentSampler(vpt, NUM_FRAMES, seed=1)
     head = sampler.sample(5)
     state = sampler.state_dict()
     tail = sampler.sample(5)
-    assert td.SinglePlayerSegmentSampler(vpt, NUM_FRAMES, seed=1).sample(10) == head + tail
-    resumed = td.SinglePlayerSegmentSampler(vpt, NUM_FRAMES, seed=1)
+    assert SinglePlayerSegmentSampler(vpt, NUM_FRAMES, seed=1).sample(10) == head + tail
+    resumed = SinglePlayerSegmentSampler(vpt, NUM_FRAMES, seed=1)
     resumed.load_state_dict(state)
     assert resumed.sample(5) == tail
-    batch = td.next_batch(vpt, resumed, 3)
+    batch = next_batch(vpt, resumed, 3)
     assert batch["obs"].shape == (3, NUM_FRAMES, 1, RES, RES, 3)
 
 
@@ -372,9 +394,9 @@ def test_vpt_corrupt_and_cp1252(root, tmp_path):
     paths[1].write_text("{broken\n")
     paths[2].write_text("\n".join(paths[2].read_text().splitlines()[:-2]))
     (split / info["episodes"][3]["video_path"]).unlink()
-    vpt = td.VPTDataset(tmp_path, "train")
+    vpt = VPTDataset(tmp_path, "train")
     assert vpt.valid_ids == [0]
-    assert dict(vpt.skipped) == {td.BAD_JSON: 1, td.COUNT_MISMATCH: 1, td.MISSING_FILE: 1}
+    assert dict(vpt.skipped) == {BAD_JSON: 1, COUNT_MISMATCH: 1, MISSING_FILE: 1}
 
 
 # ---------------------------------------------------------------------------------------------
@@ -391,7 +413,7 @@ def test_latent_cache_hit_miss_invalidation(duet, tmp_path):
 
     src = tmp_path / "ep.mp4"
     shutil.copy2(duet.recordings(0)[0].video, src)
-    cache = td.LatentCache(tmp_path / "cache", fingerprint="fake-v1")
+    cache = LatentCache(tmp_path / "cache", fingerprint="fake-v1")
     first = cache.get_or_encode(src, encode)
     assert len(calls) == 1 and calls[0][1:] == (RES, RES, 3) and first.shape == (calls[0][0],)
     np.testing.assert_array_equal(cache.get_or_encode(src, encode), first)
@@ -399,7 +421,7 @@ def test_latent_cache_hit_miss_invalidation(duet, tmp_path):
 
     cache.get_or_encode(src, encode, obs_size=(16, 16))  # another frame size: stale, re-encoded
     assert len(calls) == 2 and calls[1][1:] == (16, 16, 3)
-    td.LatentCache(tmp_path / "cache", fingerprint="fake-v2").get_or_encode(src, encode)  # another encoder
+    LatentCache(tmp_path / "cache", fingerprint="fake-v2").get_or_encode(src, encode)  # another encoder
     assert len(calls) == 3
     st = src.stat()
     os.utime(src, ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))  # the video changed

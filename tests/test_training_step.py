@@ -10,8 +10,8 @@ import pytest
 from solaris_env.world_model.action_module import padded_action_length
 from solaris_env.world_model.config import preset
 from solaris_env.world_model.world_model import WorldModel
-from training.data import make_batch
 from training.objectives import NUM_TRAIN_TIMESTEPS, sample_timesteps
+from training.samplers import make_batch
 from training.step import (NonFiniteError, TrainState, check_finite, ema_decay_at, ema_update, make_loss_fn,
                            make_optimizer, make_train_step, prepare_batch, scheduled_lr)
 

@@ -8,10 +8,11 @@
     solaris-train sprint --preset tiny --init default --out OUT --budget-min 8.5   # training/sprint.py
 
 Each stage reads the previous stage's ``OUT/<stage>/model`` and resumes from its own latest checkpoint
-(``--no-resume`` starts over). Per-stage defaults live in ``training/configs/<preset>.json``;
-``--steps`` overrides the stage's step count. ``all`` keeps within the config's wall-clock budget
-(``all.time_budget_min``; ``--time-budget-min``) by ending stage 3 early when it must (``training.budget``).
-Heavy imports (jax) happen only inside the commands.
+(``--no-resume`` starts over). Per-stage settings live in ``training/configs/<preset>.json``, validated (with
+the defaults of the optional keys) by ``training.stage_config``; ``--steps`` overrides the stage's step count.
+``all`` keeps within the config's wall-clock budget (``all.time_budget_min``; ``--time-budget-min``) by ending
+stage 3 early when it must (``training.budget``). ``install``, ``with-decoder`` and ``action-conditioning``
+rewrite a trained model (``training.surgery``). Heavy imports (jax) happen only inside the commands.
 """
 
 from __future__ import annotations
@@ -23,22 +24,20 @@ from pathlib import Path
 
 from solaris_env.cli_support import add_debug_flag, run_command
 from training.collect import collect_if_missing
+from training.stage_config import (
+    EXTRA_STAGES,
+    STAGES,
+    TrainingConfig,
+    load_stage_config,
+)
 
-STAGE_COMMANDS = ("vae", "vae-decoder", "sp", "mp-bidirectional", "mp-causal", "self-forcing",
-                  "refiner")  # ``all``, in order
-EXTRA_STAGE_COMMANDS = ("mp-rollout",)  # training.train.EXTRA_STAGES: run by name only
 ELASTIC_STAGES = ("sp", "mp-bidirectional", "mp-causal")  # may end early to keep `all` within its time budget
 
 
-def _stage_cfg(args) -> dict:
-    from training.train import load_stage_config
-    return load_stage_config(args.preset, args.config)
-
-
-def run_stage(stage: str, args, stage_cfg: dict, deadline: float | None = None) -> Path:
+def run_stage(stage: str, args, stage_cfg: TrainingConfig, deadline: float | None = None) -> Path:
     from training.train import call_stage
 
-    seed = stage_cfg.get("seed", 0) if args.seed is None else args.seed
+    seed = stage_cfg.seed if args.seed is None else args.seed
     kw = {"seed": seed, "steps": args.steps, "resume": not args.no_resume, "fsdp": args.fsdp}
     if deadline is not None:  # an elastic stage (ELASTIC_STAGES)
         kw["deadline"] = deadline
@@ -46,17 +45,16 @@ def run_stage(stage: str, args, stage_cfg: dict, deadline: float | None = None) 
 
 
 def cmd_stage(args) -> int:
-    stage_cfg = _stage_cfg(args)
+    stage_cfg = load_stage_config(args.preset, args.config)
     path = run_stage(args.command, args, stage_cfg)
     print(f"{args.command}: model written to {path}")
     return 0
 
 
-def budget_settings(args, stage_cfg: dict) -> tuple[float | None, str, float]:
+def budget_settings(args, block: dict) -> tuple[float | None, str, float]:
     """(budget in seconds or None, elastic stage, reserve in seconds) from ``--time-budget-min`` and the
-    config's optional ``all`` block (``time_budget_min``, ``elastic_stage``, ``reserve_min``); a budget of
-    0 or none means every stage runs its configured steps (``training.budget``)."""
-    block = stage_cfg.get("all", {})
+    config's ``all`` block (``TrainingConfig.all``: optional ``time_budget_min``, ``elastic_stage``,
+    ``reserve_min``); a budget of 0 or none means every stage runs its configured steps (``training.budget``)."""
     minutes = block.get("time_budget_min") if args.time_budget_min is None else args.time_budget_min
     elastic = block.get("elastic_stage", "mp-causal")
     reserve = float(block.get("reserve_min", 0.0))
@@ -76,14 +74,17 @@ def cmd_all(args) -> int:
     from training.metrics import read_metrics
     from training.train import model_dir, stage_dir
 
-    stage_cfg = _stage_cfg(args)
-    budget_s, elastic, reserve_s = budget_settings(args, stage_cfg)
+    stage_cfg = load_stage_config(args.preset, args.config)
+    if stage_cfg.collect is None:
+        raise ValueError(f"solaris-train all records its data with the stage config's collect block; "
+                         f"{args.config or args.preset} has none")
+    budget_s, elastic, reserve_s = budget_settings(args, stage_cfg.all)
     clock = RunClock(args.out).start()
     try:
         t = time.perf_counter()
-        collect_if_missing(Path(args.data), args.preset, stage_cfg["collect"])
+        collect_if_missing(Path(args.data), args.preset, stage_cfg.collect)
         clock.record("collect_s", clock.data["stages"].get("collect_s", 0.0) + time.perf_counter() - t)
-        for stage in STAGE_COMMANDS:
+        for stage in STAGES:
             if (model_dir(args.out, stage) / "config.json").is_file():  # finished earlier (resume = continue)
                 print(f"{stage}: finished earlier, skipped")
                 continue
@@ -106,13 +107,13 @@ def cmd_all(args) -> int:
 
 
 def cmd_with_decoder(args) -> int:
-    from training.train import with_decoder
+    from training.surgery import with_decoder
     print(f"wrote {with_decoder(args.model, args.decoder_from, args.out)}")
     return 0
 
 
 def cmd_action_conditioning(args) -> int:
-    from training.train import with_action_conditioning
+    from training.surgery import with_action_conditioning
     dest = with_action_conditioning(args.model, args.out, args.mouse_gain, camera_warp=args.camera_warp)
     print(f"wrote {dest}")
     return 0
@@ -129,7 +130,7 @@ def cmd_sprint(args) -> int:
 
 
 def cmd_install(args) -> int:
-    from training.train import install_default
+    from training.surgery import install_default
     dest = install_default(args.model, args.dest, tuple(args.files))
     print(f"installed {args.model} as the default model at {dest}")
     return 0
@@ -150,7 +151,7 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--fsdp", action="store_true",
                        help="shard parameters and optimiser state over the devices (default: replicated)")
 
-    for stage in STAGE_COMMANDS + EXTRA_STAGE_COMMANDS:
+    for stage in STAGES + EXTRA_STAGES:
         p = sub.add_parser(stage, help=f"train the {stage} stage")
         common(p)
         p.add_argument("--steps", type=int, default=None, help="number of updates (default: the stage config's)")

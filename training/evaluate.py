@@ -29,7 +29,8 @@ from pathlib import Path
 import numpy as np
 
 from solaris_env.paths import portable_path
-from training import data as D
+from training.duet import DuetDataset
+from training.samplers import MultiplayerSegmentSampler, next_batch
 from training.samples import (
     contact_sheet,
     psnr_per_frame,
@@ -44,10 +45,10 @@ from training.samples import (
 
 def _segments(dataset, num_frames: int, count: int, seed: int) -> dict[str, np.ndarray] | None:
     try:
-        sampler = D.MultiplayerSegmentSampler(dataset, num_frames, seed=seed)
+        sampler = MultiplayerSegmentSampler(dataset, num_frames, seed=seed)
     except ValueError:  # no episode is long enough
         return None
-    return D.next_batch(dataset, sampler, count, num_frames)
+    return next_batch(dataset, sampler, count, num_frames)
 
 
 def evaluate(model_dir: str | Path, data_dir: str | Path, out_dir: str | Path, num_segments: int = 8,
@@ -63,7 +64,7 @@ def evaluate(model_dir: str | Path, data_dir: str | Path, out_dir: str | Path, n
     cfg = model.config
     k = model.frames_per_step
     out_dir = Path(out_dir)
-    dataset = D.DuetDataset(data_dir, "test", obs_size=(cfg.frame_height, cfg.frame_width))
+    dataset = DuetDataset(data_dir, "test", obs_size=(cfg.frame_height, cfg.frame_width))
     result: dict = {"model": portable_path(model_dir, parts=3), "data": portable_path(data_dir),  # never absolute
                     "episodes": len(dataset.valid_ids),
                     "frames_per_step": k, "action_guidance": cfg.sampler.action_guidance}

@@ -11,7 +11,9 @@ import logging
 import time
 from pathlib import Path
 
-from training import data as D
+from training.duet import DuetDataset
+from training.samplers import MultiplayerSegmentSampler, SinglePlayerSegmentSampler
+from training.vpt import VPTEpisode
 
 logger = logging.getLogger(__name__)
 
@@ -25,7 +27,7 @@ def _complete(alpha_mp4: Path) -> bool:
                for p in (alpha_mp4, bravo_mp4))
 
 
-class GrowingDuetDataset(D.DuetDataset):
+class GrowingDuetDataset(DuetDataset):
     """A ``DuetDataset`` that ``rescan()``s its directory for episodes finished since. New episodes get the
     next ids (ids follow arrival, not file names: fine for training, not for eval-id files). ``history``:
     (epoch seconds, episodes, frames) at the start and after every rescan that added some."""
@@ -80,9 +82,9 @@ class DuetPlayers:
     def is_valid(self, episode_id: int) -> bool:
         return self.duet.is_valid(episode_id // 2)
 
-    def episode(self, episode_id: int) -> D.VPTEpisode:
+    def episode(self, episode_id: int) -> VPTEpisode:
         rec = self.duet.recordings(episode_id // 2)[episode_id % 2]
-        return D.VPTEpisode(rec.video, rec.actions, rec.act_T25)
+        return VPTEpisode(rec.video, rec.actions, rec.act_T25)
 
     def rescan(self, max_new: int = RESCAN_MAX_NEW) -> list[int]:
         return [2 * i + p for i in self.duet.rescan(max_new) for p in (0, 1)]
@@ -105,11 +107,11 @@ class _Rescanning:
         return super().next()
 
 
-class RescanningMultiplayerSampler(_Rescanning, D.MultiplayerSegmentSampler):
+class RescanningMultiplayerSampler(_Rescanning, MultiplayerSegmentSampler):
     """``MultiplayerSegmentSampler`` over a ``GrowingDuetDataset``."""
 
 
-class RescanningSinglePlayerSampler(_Rescanning, D.SinglePlayerSegmentSampler):
+class RescanningSinglePlayerSampler(_Rescanning, SinglePlayerSegmentSampler):
     """``SinglePlayerSegmentSampler`` over ``DuetPlayers``."""
 
 

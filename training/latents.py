@@ -12,7 +12,7 @@ runs at full resolution), so stages 1-4 read latents from a cache made once per 
   a start frame, later latents as the streaming encoder sees them (with the video's causal history
   instead of the clip's, a negligible difference beyond the encoder's receptive field).
 
-Segments come from the usual resumable samplers (``training.data``); their starts are snapped down
+Segments come from the usual resumable samplers (``training.samplers``); their starts are snapped down
 to the anchor grid: record start ``s`` becomes ``s' = k * floor((s + 1) / k) - 1`` so that the first
 frame ``s' + 1`` is an anchor (``s' = -1`` means the clip starts at frame 0; its first action, which
 precedes the recording, is a no-op). The first-frame conditioning is made from ``image[a]`` when the
@@ -38,7 +38,9 @@ from solaris_env.world_model.conditioning import first_frame_mask
 from solaris_env.world_model.config import WorldModelConfig
 from solaris_env.world_model.dit import to_stream
 from solaris_env.world_model.world_model import frames_to_model
-from training import data as D
+from training.duet import DuetDataset
+from training.episodes import DECODE_ERROR, EpisodeError, SegmentMP, SegmentSP
+from training.latent_cache import LatentCache
 
 logger = logging.getLogger(__name__)
 
@@ -111,11 +113,11 @@ class LatentClips:
 
     Args:
         dataset: a ``DuetDataset`` or ``VPTDataset`` (frames at the config's size).
-        cache: a ``training.data.LatentCache`` whose fingerprint names the VAE.
+        cache: a ``training.latent_cache.LatentCache`` whose fingerprint names the VAE.
         encoder: the ``VideoEncoder`` used on a cache miss.
     """
 
-    def __init__(self, dataset, cache: D.LatentCache, encoder: VideoEncoder, canonical_dir: Path | None = None) -> None:
+    def __init__(self, dataset, cache: LatentCache, encoder: VideoEncoder, canonical_dir: Path | None = None) -> None:
         self.dataset, self.cache, self.encoder = dataset, cache, encoder
         self.k = encoder.k
         self._latents: dict[Path, np.ndarray] = {}
@@ -128,7 +130,7 @@ class LatentClips:
 
     def _player_recordings(self, segment) -> list[tuple[Path, np.ndarray, int]]:
         """[(video, act_T25, start)] per player."""
-        if isinstance(segment, D.SegmentMP):
+        if isinstance(segment, SegmentMP):
             recs = self.dataset.recordings(segment.episode_id)
             return [(r.video, r.act_T25, s) for r, s in zip(recs, (segment.start1, segment.start2))]
         episode = self.dataset.episode(segment.episode_id)
@@ -159,8 +161,8 @@ class LatentClips:
         ids = self.dataset.valid_ids if episode_ids is None else episode_ids
         videos = []
         for episode_id in ids:
-            segment = (D.SegmentMP(episode_id, 0, 0) if isinstance(self.dataset, D.DuetDataset)
-                       else D.SegmentSP(episode_id, 0))
+            segment = (SegmentMP(episode_id, 0, 0) if isinstance(self.dataset, DuetDataset)
+                       else SegmentSP(episode_id, 0))
             videos += [video for video, _, _ in self._player_recordings(segment) if video not in self._latents]
         workers = min(BUILD_WORKERS, os.cpu_count() or 1) if workers is None else workers
         if workers < 1:
@@ -191,7 +193,7 @@ class LatentClips:
             a = (s + 1) // k
             lat = self.latents(video)
             if a + num_latent > len(lat):
-                raise D.EpisodeError(D.DECODE_ERROR, f"{video.name}: {len(lat)} latents, clip needs {a + num_latent}")
+                raise EpisodeError(DECODE_ERROR, f"{video.name}: {len(lat)} latents, clip needs {a + num_latent}")
             x0s.append(np.concatenate([lat[a:a + 1, 1], lat[a + 1:a + num_latent, 0]]).astype(np.float32))
             firsts.append(self.dataset.frames.read(video, s + 1, s + 2)[0])
             act = act_T25[max(s, 0): s + num_frames]
@@ -201,13 +203,13 @@ class LatentClips:
         return np.stack(x0s), np.stack(firsts), np.stack(acts, axis=1)
 
     def next_batch(self, sampler, batch_size: int, num_frames: int) -> dict[str, np.ndarray]:
-        """Draw ``batch_size`` clips (skipping episodes that fail, like ``training.data.next_batch``)."""
+        """Draw ``batch_size`` clips (skipping episodes that fail, like ``training.samplers.next_batch``)."""
         out = []
         while len(out) < batch_size:
             segment = sampler.next()
             try:
                 out.append(self.load(segment, num_frames))
-            except D.EpisodeError:
+            except EpisodeError:
                 continue
         x0, first, act = (np.stack(parts) for parts in zip(*out))
         return {"x0": x0, "first": first, "act": act}
@@ -247,7 +249,7 @@ def latent_clips(dataset, cfg: WorldModelConfig, vae, cache_root: Path, canonica
     """LatentClips with its cache under ``cache_root/<VAE fingerprint>``; ``canonical_dir`` (e.g.
     ``data/duet``) names the videos that hard-linked copies (the VPT export) share latents with."""
     encoder = VideoEncoder(cfg, vae)
-    cache = D.LatentCache(Path(cache_root) / encoder.fingerprint, encoder.fingerprint)
+    cache = LatentCache(Path(cache_root) / encoder.fingerprint, encoder.fingerprint)
     return LatentClips(dataset, cache, encoder, canonical_dir)
 
 

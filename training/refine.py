@@ -86,7 +86,8 @@ def make_rollouts(model: WorldModel, data_dir: str | Path, directory: str | Path
                   num_frames: int, seed: int) -> list[Path]:
     """Write the missing ``part_XXXX.npz`` of ``parts`` (module docstring, 1.); returns every part's path.
     ``model`` must have no refiner (its frames are the decodes the refiner will see)."""
-    from training import data as D
+    from training.duet import DuetDataset
+    from training.samplers import MultiplayerSegmentSampler, next_batch
     from training.samples import rollout
 
     if model.config.vae.refiner.enabled:
@@ -98,10 +99,10 @@ def make_rollouts(model: WorldModel, data_dir: str | Path, directory: str | Path
     if not todo:
         return paths
     cfg = model.config
-    dataset = D.DuetDataset(data_dir, "train", obs_size=(cfg.frame_height, cfg.frame_width))
+    dataset = DuetDataset(data_dir, "train", obs_size=(cfg.frame_height, cfg.frame_width))
     for p in todo:
-        sampler = D.MultiplayerSegmentSampler(dataset, num_frames, seed=seed + p)
-        seg = D.next_batch(dataset, sampler, segments, num_frames)
+        sampler = MultiplayerSegmentSampler(dataset, num_frames, seed=seed + p)
+        seg = next_batch(dataset, sampler, segments, num_frames)
         gen = rollout(model, seg["obs"], seg["act"], seed + p)
         _atomic_savez(paths[p], obs=seg["obs"], act=seg["act"].astype(np.float32), gen=gen)
         logger.info("refiner: rollout part %d/%d written (%d segments of %d frames)", p + 1, parts, segments,

@@ -165,7 +165,13 @@ def write_stage_sample(stem: Path, cfg: WorldModelConfig, dit, vae, encoder, dat
     """Generate one held-out segment (duet/test, or vpt/test for one player) with the stage's model and
     write ``<stem>.mp4`` (generated over ground truth) and ``<stem>.json`` (PSNR); returns the summary, or
     None (a warning, nothing written) when no held-out episode holds ``num_frames`` frames."""
-    from training import data as D
+    from training.duet import DuetDataset
+    from training.samplers import (
+        MultiplayerSegmentSampler,
+        SinglePlayerSegmentSampler,
+        next_batch,
+    )
+    from training.vpt import VPTDataset
 
     stem = Path(stem)
     k = cfg.frames_per_step
@@ -173,15 +179,15 @@ def write_stage_sample(stem: Path, cfg: WorldModelConfig, dit, vae, encoder, dat
     size = (cfg.frame_height, cfg.frame_width)
     try:
         if cfg.num_players == 1:
-            dataset = D.VPTDataset(data_dir, "test", obs_size=size)
-            sampler = D.SinglePlayerSegmentSampler(dataset, num_frames, seed=seed + 20_000)
+            dataset = VPTDataset(data_dir, "test", obs_size=size)
+            sampler = SinglePlayerSegmentSampler(dataset, num_frames, seed=seed + 20_000)
         else:
-            dataset = D.DuetDataset(data_dir, "test", obs_size=size)
-            sampler = D.MultiplayerSegmentSampler(dataset, num_frames, seed=seed + 20_000)
+            dataset = DuetDataset(data_dir, "test", obs_size=size)
+            sampler = MultiplayerSegmentSampler(dataset, num_frames, seed=seed + 20_000)
     except (ValueError, FileNotFoundError) as err:  # no held-out episode long enough: a sample is optional,
         logger.warning("sample %s skipped: %s", stem, err)  # never a reason to lose the stage's model
         return None
-    raw = D.next_batch(dataset, sampler, 1)
+    raw = next_batch(dataset, sampler, 1)
     if entry_point == "forward_bidirectional":
         gen = bidirectional_sample(cfg, dit, vae, encoder, raw["obs"], raw["act"], seed)
     else:

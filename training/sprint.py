@@ -65,8 +65,14 @@ from pathlib import Path
 
 from solaris_env.paths import portable_text
 from training.collect import collect_argv
-from training.growing_data import STREAMS, data_record
 from training.config_files import read_json_config
+from training.growing_data import STREAMS, data_record
+from training.stage_config import (
+    STAGE_CONFIGS,
+    STAGES,
+    TrainingConfig,
+    load_stage_config,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -76,7 +82,6 @@ LINEAGE_FILE = "lineage.json"
 LINEAGE_FORMAT = "solaris_env.sprint_lineage"
 VAE_STAGES = ("vae", "vae-decoder")
 OPEN_ENDED_STEPS = 10**9  # a sprint stage runs until its deadline
-OPTIONAL_STAGE_KEYS = ("ema_decay", "generator", "loss")  # keys a stage override may add to a base block
 HEARTBEAT_S = 30.0  # a progress line at most this often inside the DiT stages
 
 
@@ -109,8 +114,6 @@ class DeviceSettings:
 
     @classmethod
     def from_dict(cls, block: dict, where: str) -> DeviceSettings:
-        from training.train import STAGES
-
         keys = [f.name for f in dataclasses.fields(cls)]
         if sorted(block) != sorted(keys):
             raise ValueError(f"{where} must have exactly the keys {keys}, got {sorted(block)}")
@@ -157,8 +160,6 @@ class SprintConfig:
 
     @classmethod
     def from_dict(cls, data: dict, where: str = "sprint config") -> SprintConfig:
-        from training.train import STAGES
-
         keys = [f.name for f in dataclasses.fields(cls)]
         if sorted(data) != sorted(keys):
             raise ValueError(f"{where}: unknown keys {sorted(set(data) - set(keys))}, missing keys "
@@ -195,28 +196,26 @@ class SprintConfig:
         return self.devices[platform]
 
 
-def stage_blocks(cfg: SprintConfig, device: DeviceSettings) -> dict:
+def stage_blocks(cfg: SprintConfig, device: DeviceSettings) -> TrainingConfig:
     """The stage config of ``training.train``'s functions: the base blocks, the device's overrides, and the
-    sprint's own settings (open-ended steps, no checkpoints, samples or LR cool-down, rescanning data)."""
-    from training.train import STAGES, load_stage_config
-
+    sprint's own settings (open-ended steps, no checkpoints, samples or LR cool-down, rescanning data; each
+    where the stage's block has the key), every block validated again (``training.stage_config``)."""
     base = load_stage_config(cfg.stage_config)
-    if base["preset"] != cfg.preset:
-        raise ValueError(f"stage config {cfg.stage_config!r} is for preset {base['preset']!r}, the sprint's is "
+    if base.preset != cfg.preset:
+        raise ValueError(f"stage config {cfg.stage_config!r} is for preset {base.preset!r}, the sprint's is "
                          f"{cfg.preset!r}")
-    blocks = dict(base)
+    sprint = {"steps": OPEN_ENDED_STEPS, "ckpt_every": 0, "sample_every": 0, "lr_decay_steps": 0,
+              "rescan_s": cfg.rescan_s}
+    blocks = dict(base.stages)
     for stage in STAGES:
         override = device.stages.get(stage, {})
-        unknown = sorted(set(override) - set(base[stage]) - set(OPTIONAL_STAGE_KEYS))
-        if unknown:
-            raise ValueError(f"sprint stage override {stage}: unknown keys {unknown}; expected keys of the "
-                             f"{cfg.stage_config!r} block {sorted(base[stage])} or {OPTIONAL_STAGE_KEYS}")
         if override.get("lr_decay_steps", 0):
             raise ValueError(f"sprint stage override {stage}.lr_decay_steps must be 0 (stages are open-ended: no "
                              f"cool-down can be scheduled), got {override['lr_decay_steps']}")
-        blocks[stage] = {**base[stage], **override, "steps": OPEN_ENDED_STEPS, "ckpt_every": 0, "sample_every": 0,
-                         "lr_decay_steps": 0, "rescan_s": cfg.rescan_s}
-    return blocks
+        block = {**dataclasses.asdict(base.stages[stage]), **override}
+        block.update({k: v for k, v in sprint.items() if k in block})
+        blocks[stage] = STAGE_CONFIGS[stage].from_dict(block, f"sprint stage override {stage}")
+    return dataclasses.replace(base, stages=blocks)
 
 
 def plan_shares(pending: list[tuple[str, float]], overhead_s: dict, min_train_s: float, left_s: float
@@ -449,7 +448,7 @@ class SprintArgs:
 
 
 def resolve_init(init: str | None) -> Path | None:
-    from training.train import DEFAULT_MODEL_DIR
+    from training.surgery import DEFAULT_MODEL_DIR
 
     if init is None:
         return None
@@ -577,13 +576,11 @@ class Sprint:
         return self.exporter.dest
 
     def stage_order(self) -> list[str]:
-        from training.train import STAGES
-
         return [s for s in STAGES if not (self.init and s in VAE_STAGES)]
 
     def train_stages(self, fractions: dict) -> str:
         """Every stage in order, trained (``plan_shares``) or skipped; returns the last stage trained."""
-        from training.train import STAGES, model_dir
+        from training.train import model_dir
 
         latest, trained = None, False
         if self.init is not None:
@@ -629,7 +626,7 @@ class Sprint:
         ended (setup and JIT compile: seconds after the stage's start, when that step was logged), its last
         losses and the data it saw."""
         from training.metrics import read_metrics
-        from training.train import STAGES, call_stage, stage_dir
+        from training.train import call_stage, stage_dir
 
         shutil.rmtree(stage_dir(self.run_dir, stage), ignore_errors=True)  # no stale checkpoints or rollouts
         exportable = STAGES.index(stage) >= STAGES.index(self.cfg.export_from)

@@ -14,10 +14,8 @@
 Every stage starts from the previous stage's ``model/`` and resumes from its own latest checkpoint:
 a run killed at any point (even ``kill -9``) and restarted continues with the same next loss, because
 the train state, the optimiser state, the step RNG and the data sampler are all restored. Stage
-hyper-parameters come from ``training/configs/<preset>.json`` (one block per stage). The flow-matching stages
-also take two optional keys, both off by default (the spec's recipe): ``lr_decay_steps`` (a linear LR
-cool-down over the last N updates, ``step.scheduled_lr``) and ``ema_decay`` (the stage saves an exponential
-moving average of the DiT's parameters, kept in its checkpoints, instead of the last update).
+hyper-parameters come from ``training/configs/<preset>.json``, one block per stage, each validated into its
+dataclass with its defaults (``training.stage_config``; docs/training.md, "Stage configs").
 """
 
 from __future__ import annotations
@@ -38,16 +36,27 @@ import optax
 from flax import nnx
 
 from solaris_env.world_model import checkpoint
-from solaris_env.world_model.components import COMPONENTS
-from solaris_env.world_model.config import VAEConfig, WorldModelConfig
+from solaris_env.world_model.config import WorldModelConfig
 from solaris_env.world_model.config import preset as make_preset
 from solaris_env.world_model.dit import WorldDiT
 from solaris_env.world_model.world_model import WorldModel
-from training import data as D
 from training.checkpointing import Checkpointer, abstract_state
-from training.config_files import read_json_config
+from training.duet import DuetDataset
 from training.growing_data import growing_stream
 from training.metrics import MetricsLogger
+from training.samplers import (
+    MultiplayerSegmentSampler,
+    SinglePlayerSegmentSampler,
+    next_batch,
+)
+from training.stage_config import (
+    FlowStageConfig,
+    RefinerStageConfig,
+    SelfForcingStageConfig,
+    TrainingConfig,
+    VAEDecoderStageConfig,
+    VAEStageConfig,
+)
 from training.step import (
     TrainState,
     check_finite,
@@ -55,12 +64,10 @@ from training.step import (
     make_train_step,
     scheduled_lr,
 )
+from training.surgery import relayout_decoder
+from training.vpt import VPTDataset
 
 logger = logging.getLogger(__name__)
-
-CONFIG_DIR = Path(__file__).parent / "configs"
-STAGES = ("vae", "vae-decoder", "sp", "mp-bidirectional", "mp-causal", "self-forcing", "refiner")
-EXTRA_STAGES = ("mp-rollout",)  # not part of ``all``: run by name
 
 
 @dataclass(frozen=True)
@@ -83,19 +90,6 @@ FLOW_STAGES = {
     "mp-rollout": FlowStage("forward_causal", "diffusion_forcing", "mp-causal", single_player=False,
                             objective="rollout_regression"),
 }
-
-
-def load_stage_config(preset_name: str, path: str | Path | None = None) -> dict:
-    """The per-stage defaults: ``path`` or ``training/configs/<preset>.json``."""
-    path = Path(path) if path else CONFIG_DIR / f"{preset_name}.json"
-    if not path.is_file():
-        raise FileNotFoundError(f"no stage config {path}; presets with one: "
-                                f"{sorted(p.stem for p in CONFIG_DIR.glob('*.json'))}")
-    cfg = read_json_config(path)
-    missing = [s for s in STAGES if s not in cfg]
-    if missing:
-        raise ValueError(f"{path}: missing stage blocks {missing}")
-    return cfg
 
 
 def stage_dir(out: str | Path, stage: str) -> Path:
@@ -206,8 +200,8 @@ def duet_stream(data_dir: Path, cfg: WorldModelConfig, num_frames: int, seed: in
     the episodes written meanwhile every ``rescan_s`` seconds (``training.growing_data``)."""
     if rescan_s and split == "train":
         return growing_stream(data_dir, cfg, num_frames, seed, rescan_s, single_player=False, **_ranks())
-    dataset = D.DuetDataset(data_dir, split, obs_size=(cfg.frame_height, cfg.frame_width), frame_cache_mb=4096)
-    return dataset, D.MultiplayerSegmentSampler(dataset, num_frames, seed=seed, **(_ranks() if split == "train" else {}))
+    dataset = DuetDataset(data_dir, split, obs_size=(cfg.frame_height, cfg.frame_width), frame_cache_mb=4096)
+    return dataset, MultiplayerSegmentSampler(dataset, num_frames, seed=seed, **(_ranks() if split == "train" else {}))
 
 
 def vpt_stream(data_dir: Path, cfg: WorldModelConfig, num_frames: int, seed: int, split: str = "train",
@@ -219,8 +213,8 @@ def vpt_stream(data_dir: Path, cfg: WorldModelConfig, num_frames: int, seed: int
     if not (Path(data_dir) / "vpt" / split / "episodes_info.json").is_file():
         from solaris_env.engine.vpt_export import export_vpt
         export_vpt(data_dir, data_dir)  # links the Duet videos; single-player actions per bot
-    dataset = D.VPTDataset(data_dir, split, obs_size=(cfg.frame_height, cfg.frame_width), frame_cache_mb=4096)
-    return dataset, D.SinglePlayerSegmentSampler(dataset, num_frames, seed=seed, **(_ranks() if split == "train" else {}))
+    dataset = VPTDataset(data_dir, split, obs_size=(cfg.frame_height, cfg.frame_width), frame_cache_mb=4096)
+    return dataset, SinglePlayerSegmentSampler(dataset, num_frames, seed=seed, **(_ranks() if split == "train" else {}))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -228,7 +222,7 @@ def vpt_stream(data_dir: Path, cfg: WorldModelConfig, num_frames: int, seed: int
 # ---------------------------------------------------------------------------------------------
 
 
-def train_vae(out: str | Path, data_dir: str | Path, preset_name: str, stage_cfg: dict, seed: int = 0,
+def train_vae(out: str | Path, data_dir: str | Path, preset_name: str, sc: VAEStageConfig, seed: int = 0,
               steps: int | None = None, resume: bool = True, fsdp: bool = False,
               deadline: float | None = None) -> Path:
     """Train the preset's VAE on single-player clips of the Duet data; write ``out/vae/model``. ``deadline``
@@ -237,17 +231,16 @@ def train_vae(out: str | Path, data_dir: str | Path, preset_name: str, stage_cfg
     from training.samples import write_json, write_png
 
     out, data_dir = Path(out), Path(data_dir)
-    sc = dict(stage_cfg)
-    steps = steps or sc["steps"]
+    steps = steps or sc.steps
     cfg = make_preset(preset_name)
     cfg = cfg.replace(vae=dataclasses.replace(cfg.vae, latent_mean=(), latent_std=()))
     model = WorldModel.from_config(cfg, seed=seed)
     _, vae, _ = model.modules()
-    tx = make_optimizer(sc["lr"])
+    tx = make_optimizer(sc.lr)
     graphdef, state = TrainState.create(vae, tx, rng=seed)
     step_fn = V.make_vae_train_step(graphdef, tx, V.VAELossWeights())
     sampler, draw, batch_size = single_player_clips(data_dir, cfg, sc, seed)
-    test_clips = _fixed_clips(data_dir, cfg, sc["num_frames"], sc["eval_clips"], seed)
+    test_clips = _fixed_clips(data_dir, cfg, sc.num_frames, sc.eval_clips, seed)
     reconstruct = V.make_reconstruct(graphdef)
     samples = stage_dir(out, "vae") / "samples"
 
@@ -258,12 +251,12 @@ def train_vae(out: str | Path, data_dir: str | Path, preset_name: str, stage_cfg
         rows = [np.concatenate(list(clip), axis=1) for pair in zip(gt, rec) for clip in pair]  # truth over recon
         write_png(samples / f"recon_{step:06d}.png", np.concatenate(rows, axis=0), scale=1)
 
-    spec = LoopSpec("vae", steps, sc["log_every"], sc["ckpt_every"], sc["sample_every"],
-                    tokens_per_step=batch_size * cfg.num_players * sc["num_frames"] * cfg.frame_height
-                    * cfg.frame_width, lr=sc["lr"], fsdp=fsdp, deadline=deadline)
+    spec = LoopSpec("vae", steps, sc.log_every, sc.ckpt_every, sc.sample_every,
+                    tokens_per_step=batch_size * cfg.num_players * sc.num_frames * cfg.frame_height
+                    * cfg.frame_width, lr=sc.lr, fsdp=fsdp, deadline=deadline)
     state = run_loop(spec, out, state, step_fn, draw, sampler, resume, on_sample)
 
-    stats_clips = [draw() for _ in range(max(1, sc["stats_clips"] // (batch_size * cfg.num_players)))]
+    stats_clips = [draw() for _ in range(max(1, sc.stats_clips // (batch_size * cfg.num_players)))]
     mean, std = V.latent_statistics(graphdef, state.params, state.rest, stats_clips)
     test_psnr = float(np.mean([V.psnr_uint8(np.asarray(reconstruct(state.params, state.rest, c)), c)
                                for c in test_clips]))
@@ -276,21 +269,20 @@ def train_vae(out: str | Path, data_dir: str | Path, preset_name: str, stage_cfg
     return model_dir(out, "vae")
 
 
-def train_vae_decoder(out: str | Path, data_dir: str | Path, preset_name: str, stage_cfg: dict, seed: int = 0,
-                      steps: int | None = None, resume: bool = True, fsdp: bool = False,
+def train_vae_decoder(out: str | Path, data_dir: str | Path, preset_name: str, sc: VAEDecoderStageConfig,
+                      seed: int = 0, steps: int | None = None, resume: bool = True, fsdp: bool = False,
                       deadline: float | None = None) -> Path:
     """Fine-tune the decoder side of ``out/vae/model`` on long clips (``training.vae``: the encoder, the
     latent statistics and so every latent stay fixed); write ``out/vae-decoder/model``.
 
     The decoder takes the preset's decoder layout (``VAEConfig.decoder_layout``); when the trained VAE's
     differs, it is rebuilt in that layout, warm-started from every trained leaf of the same path and shape
-    (``relayout_decoder``)."""
+    (``training.surgery.relayout_decoder``)."""
     from training import vae as V
     from training.samples import write_json
 
     out, data_dir = Path(out), Path(data_dir)
-    sc = dict(stage_cfg)
-    steps = steps or sc["steps"]
+    steps = steps or sc.steps
     cfg, (dit, vae, encoder) = load_stage_model(out, "vae")
     target = cfg.vae.with_decoder_layout(make_preset(preset_name).vae)
     if target != cfg.vae:
@@ -300,11 +292,11 @@ def train_vae_decoder(out: str | Path, data_dir: str | Path, preset_name: str, s
                                                                       "warm_started_leaves": copied})
     k = cfg.frames_per_step
     params = nnx.state(vae, nnx.Param)
-    tx = V.make_decoder_optimizer(sc["lr"], params)
+    tx = V.make_decoder_optimizer(sc.lr, params)
     graphdef, state = TrainState.create(vae, tx, rng=seed)
     step_fn = V.make_decoder_train_step(graphdef, tx, V.VAELossWeights())
     sampler, draw, batch_size = single_player_clips(data_dir, cfg, sc, seed)
-    test_clips = _fixed_clips(data_dir, cfg, sc["num_frames"], sc["eval_clips"], seed)
+    test_clips = _fixed_clips(data_dir, cfg, sc.num_frames, sc.eval_clips, seed)
     reconstruct = V.make_reconstruct(graphdef)
 
     def test_psnr(st) -> dict:
@@ -318,49 +310,25 @@ def train_vae_decoder(out: str | Path, data_dir: str | Path, preset_name: str, s
     def on_sample(st, step):
         _log_json(stage_dir(out, "vae-decoder") / "eval.jsonl", {"step": step, **test_psnr(st)})
 
-    spec = LoopSpec("vae-decoder", steps, sc["log_every"], sc["ckpt_every"], sc["sample_every"],
-                    tokens_per_step=batch_size * cfg.num_players * sc["num_frames"] * cfg.frame_height
-                    * cfg.frame_width, lr=sc["lr"], fsdp=fsdp, deadline=deadline)
+    spec = LoopSpec("vae-decoder", steps, sc.log_every, sc.ckpt_every, sc.sample_every,
+                    tokens_per_step=batch_size * cfg.num_players * sc.num_frames * cfg.frame_height
+                    * cfg.frame_width, lr=sc.lr, fsdp=fsdp, deadline=deadline)
     state = run_loop(spec, out, state, step_fn, draw, sampler, resume, on_sample)
     after = test_psnr(state)
     WorldModel(cfg, dit, nnx.merge(graphdef, state.params, state.rest), encoder).save(model_dir(out, "vae-decoder"))
     write_json(stage_dir(out, "vae-decoder") / "summary.json",
-               {"steps": steps, "num_frames": sc["num_frames"], "before": before, "after": after})
+               {"steps": steps, "num_frames": sc.num_frames, "before": before, "after": after})
     return model_dir(out, "vae-decoder")
 
 
-def relayout_decoder(vae, target: VAEConfig, seed: int):
-    """``vae`` rebuilt with ``target``'s (decoder) layout: every parameter whose path and shape exist in
-    both is copied (so the encoder side, and the latent space, are exactly ``vae``'s), the rest is
-    freshly initialised. Returns (the new VAE, the copied decoder-side paths as strings)."""
-    from solaris_env.world_model.vae import CausalVideoVAE
-    from training.vae import DECODER_MODULES
-
-    fresh = CausalVideoVAE(target, rngs=nnx.Rngs(seed))
-    old = dict(nnx.to_flat_state(nnx.state(vae, nnx.Param)))
-    new = nnx.state(fresh, nnx.Param)
-    copied = []
-    for path, var in nnx.to_flat_state(new):
-        src = old.get(path)
-        if src is not None and src.get_value().shape == var.get_value().shape:
-            var.set_value(src.get_value())
-            if path[0] in DECODER_MODULES:
-                copied.append("/".join(map(str, path)))
-        elif path[0] not in DECODER_MODULES:
-            raise ValueError(f"relayout_decoder: encoder-side parameter {'/'.join(map(str, path))} does not match "
-                             f"(target layout {target.decoder_layout()} must change only the decoder)")
-    nnx.update(fresh, new)
-    return fresh, copied
-
-
-def single_player_clips(data_dir: Path, cfg: WorldModelConfig, sc: dict, seed: int):
+def single_player_clips(data_dir: Path, cfg: WorldModelConfig, sc: VAEDecoderStageConfig, seed: int):
     """(sampler, draw, local batch size) of the VAE stages: ``draw()`` gives B segments x P players as
     B*P single-player clips (B*P, T, H, W, 3) uint8."""
-    dataset, sampler = duet_stream(data_dir, cfg, sc["num_frames"], seed, rescan_s=sc.get("rescan_s"))
-    batch_size = local_batch_size(sc["batch_size"])
+    dataset, sampler = duet_stream(data_dir, cfg, sc.num_frames, seed, rescan_s=sc.rescan_s)
+    batch_size = local_batch_size(sc.batch_size)
 
     def draw():
-        obs = D.next_batch(dataset, sampler, batch_size)["obs"]
+        obs = next_batch(dataset, sampler, batch_size)["obs"]
         return jnp.asarray(np.swapaxes(obs, 1, 2).reshape((-1,) + obs.shape[1:2] + obs.shape[3:]))
 
     return sampler, draw, batch_size
@@ -369,7 +337,7 @@ def single_player_clips(data_dir: Path, cfg: WorldModelConfig, sc: dict, seed: i
 def _fixed_clips(data_dir: Path, cfg: WorldModelConfig, num_frames: int, count: int, seed: int) -> list[np.ndarray]:
     """Held-out single-player clips (duet/test), the same every run: list of (n, T, H, W, 3) uint8."""
     dataset, sampler = duet_stream(data_dir, cfg, num_frames, seed + 10_000, split="test")
-    obs = D.next_batch(dataset, sampler, max(1, count // cfg.num_players))["obs"]
+    obs = next_batch(dataset, sampler, max(1, count // cfg.num_players))["obs"]
     clips = np.swapaxes(obs, 1, 2).reshape((-1,) + obs.shape[1:2] + obs.shape[3:])
     return [clips[i:i + 8] for i in range(0, len(clips), 8)]
 
@@ -399,15 +367,16 @@ def _frozen_player_embedding(params) -> Any:
         lambda path, _: "frozen" if any(getattr(k, "key", None) == "player_embed" for k in path) else "train", params)
 
 
-def clip_stream(out: Path, data_dir: Path, cfg: WorldModelConfig, vae, encoder, sc: dict, seed: int,
+def clip_stream(out: Path, data_dir: Path, cfg: WorldModelConfig, vae, encoder,
+                sc: FlowStageConfig | SelfForcingStageConfig, seed: int,
                 single_player: bool, deadline: float | None = None):
     """(LatentClips, resumable sampler, jitted batch preparation) of a DiT stage; the latent cache of the
     stage's VAE lives in ``out/latents`` and is built (once) before training, with at most half of the time
     to ``deadline`` (epoch seconds) when one is given: videos not encoded by then are on first use."""
     from training.latents import latent_clips, make_prepare_latents
 
-    dataset, sampler = (vpt_stream if single_player else duet_stream)(data_dir, cfg, sc["num_frames"], seed,
-                                                                      rescan_s=sc.get("rescan_s"))
+    dataset, sampler = (vpt_stream if single_player else duet_stream)(data_dir, cfg, sc.num_frames, seed,
+                                                                      rescan_s=sc.rescan_s)
     clips = latent_clips(dataset, cfg, vae, Path(out) / "latents", canonical_dir=Path(data_dir) / "duet")
     t0 = time.perf_counter()
     now = time.time()
@@ -416,7 +385,7 @@ def clip_stream(out: Path, data_dir: Path, cfg: WorldModelConfig, vae, encoder, 
     return clips, sampler, make_prepare_latents(cfg, vae, encoder)
 
 
-def train_flow(stage: str, out: str | Path, data_dir: str | Path, stage_cfg: dict, seed: int = 0,
+def train_flow(stage: str, out: str | Path, data_dir: str | Path, sc: FlowStageConfig, seed: int = 0,
                steps: int | None = None, resume: bool = True, fsdp: bool = False,
                deadline: float | None = None, on_model: Callable | None = None) -> Path:
     """Stages 1-3: flow matching of the DiT with the stage's entry point and noise type; ``deadline``
@@ -426,13 +395,12 @@ def train_flow(stage: str, out: str | Path, data_dir: str | Path, stage_cfg: dic
         raise ValueError(f"stage must be one of {sorted(FLOW_STAGES)}, got {stage!r}")
     fs = FLOW_STAGES[stage]
     out, data_dir = Path(out), Path(data_dir)
-    sc = dict(stage_cfg)
-    steps = steps or sc["steps"]
+    steps = steps or sc.steps
     base_cfg = checkpoint.read_config(model_dir(out, fs.init_from))
     players = 1 if fs.single_player else make_preset(base_cfg.name).num_players
     cfg, (dit, vae, encoder) = load_stage_model(out, fs.init_from, num_players=players)
-    decay_steps, ema_decay = sc.get("lr_decay_steps", 0), sc.get("ema_decay", 0.0)
-    adamw = make_optimizer(sc["lr"], steps, decay_steps)
+    decay_steps, ema_decay = sc.lr_decay_steps, sc.ema_decay
+    adamw = make_optimizer(sc.lr, steps, decay_steps)
     if fs.single_player:
         params = nnx.state(dit, nnx.Param)
         dit.player_embed.embedding.set_value(jnp.zeros_like(dit.player_embed.embedding[...]))
@@ -446,19 +414,19 @@ def train_flow(stage: str, out: str | Path, data_dir: str | Path, stage_cfg: dic
     else:
         train_step = make_train_step(graphdef, fs.entry_point, fs.noise_type, tx, ema_decay)
     clips, sampler, prepare = clip_stream(out, data_dir, cfg, vae, encoder, sc, seed, fs.single_player, deadline)
-    batch_size = local_batch_size(sc["batch_size"])
+    batch_size = local_batch_size(sc.batch_size)
 
     def draw():
-        return prepare(clips.next_batch(sampler, batch_size, sc["num_frames"]))
+        return prepare(clips.next_batch(sampler, batch_size, sc.num_frames))
 
     def on_sample(st, step):
         from training.samples import write_stage_sample
         write_stage_sample(stage_dir(out, stage) / "samples" / f"step_{step:06d}", cfg,
                            nnx.merge(graphdef, st.final_params, st.rest), vae, encoder, data_dir, fs.entry_point, seed)
 
-    frames = cfg.vae.latent_frames(sc["num_frames"])
-    spec = LoopSpec(stage, steps, sc["log_every"], sc["ckpt_every"], sc["sample_every"],
-                    tokens_per_step=batch_size * cfg.num_players * frames * cfg.tokens_per_frame, lr=sc["lr"],
+    frames = cfg.vae.latent_frames(sc.num_frames)
+    spec = LoopSpec(stage, steps, sc.log_every, sc.ckpt_every, sc.sample_every,
+                    tokens_per_step=batch_size * cfg.num_players * frames * cfg.tokens_per_frame, lr=sc.lr,
                     fsdp=fsdp, lr_decay_steps=decay_steps, deadline=deadline)
 
     def current(st) -> WorldModel:
@@ -481,38 +449,34 @@ def _model_hook(on_model: Callable | None, current: Callable[[Any], WorldModel])
 # ---------------------------------------------------------------------------------------------
 
 
-def train_self_forcing(out: str | Path, data_dir: str | Path, stage_cfg: dict, seed: int = 0,
+def train_self_forcing(out: str | Path, data_dir: str | Path, sc: SelfForcingStageConfig, seed: int = 0,
                        steps: int | None = None, resume: bool = True, fsdp: bool = False,
                        deadline: float | None = None, on_model: Callable | None = None) -> Path:
     """Stage 4: generator from mp-causal, critic and frozen teacher from mp-bidirectional (docs/model.md
     §6.3); ``steps`` counts iterations (a critic update each, a generator update every 5th). The
-    generator mode is ``stage_cfg["generator"]``: "checkpointed" (default) or "naive". ``deadline`` and
-    ``on_model`` as ``train_flow``'s."""
+    generator mode is ``sc.generator``: "checkpointed" or "naive". ``deadline`` and ``on_model`` as
+    ``train_flow``'s."""
     from training import self_forcing as SF
 
     out, data_dir = Path(out), Path(data_dir)
-    sc = dict(stage_cfg)
-    steps = steps or sc["steps"]
+    steps = steps or sc.steps
     cfg, (generator, vae, encoder) = load_stage_model(out, "mp-causal")
     _, (teacher, _, _) = load_stage_model(out, "mp-bidirectional")
     critic = teacher  # both start from stage 2; create_self_forcing_state gives each its own copy
-    sf_cfg = SF.SelfForcingConfig(generator_lr=sc["generator_lr"], critic_lr=sc["critic_lr"])
+    sf_cfg = SF.SelfForcingConfig(generator_lr=sc.generator_lr, critic_lr=sc.critic_lr)
     gen_tx, critic_tx = SF.make_optimizers(sf_cfg)
     graphs, state = SF.create_self_forcing_state(generator, critic, teacher, gen_tx, critic_tx, rng=seed)
     del critic, teacher
-    mode = sc.get("generator", "checkpointed")
     make_generator_step = {"checkpointed": SF.make_checkpointed_generator_step,
-                           "naive": SF.make_naive_generator_step}
-    if mode not in make_generator_step:
-        raise ValueError(f"self-forcing generator must be one of {sorted(make_generator_step)}, got {mode!r}")
-    iteration = SF.make_iteration(make_generator_step[mode](graphs, gen_tx, sf_cfg),
+                           "naive": SF.make_naive_generator_step}[sc.generator]
+    iteration = SF.make_iteration(make_generator_step(graphs, gen_tx, sf_cfg),
                                   SF.make_critic_step(graphs, critic_tx, sf_cfg), sf_cfg)
     clips, sampler, prepare = clip_stream(out, data_dir, cfg, vae, encoder, sc, seed, single_player=False,
                                           deadline=deadline)
-    batch_size = local_batch_size(sc["batch_size"])
+    batch_size = local_batch_size(sc.batch_size)
 
     def draw():
-        return SF.conditioning_batch(prepare(clips.next_batch(sampler, batch_size, sc["num_frames"])))
+        return SF.conditioning_batch(prepare(clips.next_batch(sampler, batch_size, sc.num_frames)))
 
     def on_sample(st, step):
         from training.samples import write_stage_sample
@@ -520,8 +484,8 @@ def train_self_forcing(out: str | Path, data_dir: str | Path, stage_cfg: dict, s
         write_stage_sample(stage_dir(out, "self-forcing") / "samples" / f"step_{step:06d}", cfg, dit, vae, encoder,
                            data_dir, "forward_causal", seed)
 
-    frames = cfg.vae.latent_frames(sc["num_frames"])
-    spec = LoopSpec("self-forcing", steps, sc["log_every"], sc["ckpt_every"], sc["sample_every"],
+    frames = cfg.vae.latent_frames(sc.num_frames)
+    spec = LoopSpec("self-forcing", steps, sc.log_every, sc.ckpt_every, sc.sample_every,
                     tokens_per_step=batch_size * cfg.num_players * frames * cfg.tokens_per_frame,
                     lr=sf_cfg.generator_lr, fsdp=fsdp, deadline=deadline)
 
@@ -538,7 +502,7 @@ def train_self_forcing(out: str | Path, data_dir: str | Path, stage_cfg: dict, s
 # ---------------------------------------------------------------------------------------------
 
 
-def train_refiner(out: str | Path, data_dir: str | Path, stage_cfg: dict, seed: int = 0,
+def train_refiner(out: str | Path, data_dir: str | Path, sc: RefinerStageConfig, seed: int = 0,
                   steps: int | None = None, resume: bool = True, fsdp: bool = False,
                   deadline: float | None = None, on_model: Callable | None = None) -> Path:
     """The refiner of ``OUT/<init_from>/model`` (default self-forcing), trained on that model's rollouts of
@@ -548,37 +512,36 @@ def train_refiner(out: str | Path, data_dir: str | Path, stage_cfg: dict, seed: 
     from training import refine as R
 
     out, data_dir = Path(out), Path(data_dir)
-    sc = dict(stage_cfg)
-    steps = steps or sc["steps"]
-    base = WorldModel.load(model_dir(out, sc.get("init_from", "self-forcing")))
-    r = sc["refiner"]
-    refiner_cfg = RefinerConfig(width=r["width"], pool=r["pool"],
-                                action_dim=base.config.action.action_dim if r["actions"] else 0,
-                                camera_shift=tuple(r.get("camera_shift", (0.0, 0.0))))
+    steps = steps or sc.steps
+    base = WorldModel.load(model_dir(out, sc.init_from))
+    r = sc.refiner
+    refiner_cfg = RefinerConfig(width=r.width, pool=r.pool,
+                                action_dim=base.config.action.action_dim if r.actions else 0,
+                                camera_shift=r.camera_shift)
     paths = R.make_rollouts(R.with_refiner(base, None), data_dir, stage_dir(out, "refiner") / "rollouts",
-                            sc["rollout_parts"], sc["segments_per_part"], sc["num_frames"], seed)
+                            sc.rollout_parts, sc.segments_per_part, sc.num_frames, seed)
     data = R.load_rollouts(paths)
     model = R.with_refiner(base, refiner_cfg, seed)
     del base
     refiner = model.modules()[1].refiner
-    tx = make_optimizer(sc["lr"])
+    tx = make_optimizer(sc.lr)
     graphdef, state = TrainState.create(refiner, tx, rng=seed)
-    sampler = R.RolloutSampler(len(data["obs"]), local_batch_size(sc["batch_size"]), seed)
+    sampler = R.RolloutSampler(len(data["obs"]), local_batch_size(sc.batch_size), seed)
 
     def draw():
         i = sampler.next_indices()
         return {key: jnp.asarray(v[i]) for key, v in data.items()}
 
     n, t, h, w, _ = data["obs"].shape
-    spec = LoopSpec("refiner", steps, sc["log_every"], sc["ckpt_every"], sc.get("sample_every", steps),
-                    tokens_per_step=sc["batch_size"] * t * h * w, lr=sc["lr"], fsdp=fsdp, deadline=deadline)
+    spec = LoopSpec("refiner", steps, sc.log_every, sc.ckpt_every, 0,  # 0: the refiner writes no samples
+                    tokens_per_step=sc.batch_size * t * h * w, lr=sc.lr, fsdp=fsdp, deadline=deadline)
     dit, vae, encoder = model.modules()
 
     def current(st) -> WorldModel:
         vae.refiner = nnx.merge(graphdef, st.params, st.rest)
         return WorldModel(model.config, dit, vae, encoder)
 
-    state = run_loop(spec, out, state, R.make_refiner_step(graphdef, tx, sc.get("loss", "mse")), draw, sampler,
+    state = run_loop(spec, out, state, R.make_refiner_step(graphdef, tx, sc.loss), draw, sampler,
                      resume, on_step=_model_hook(on_model, current))
     current(state).save(model_dir(out, "refiner"))
     return model_dir(out, "refiner")
@@ -589,126 +552,25 @@ def train_refiner(out: str | Path, data_dir: str | Path, stage_cfg: dict, seed: 
 # ---------------------------------------------------------------------------------------------
 
 
-def call_stage(stage: str, out, data, stage_cfg: dict, **kw) -> Path:
-    """Run ``stage``'s function of this module on its block of ``stage_cfg`` with keyword arguments ``kw``
+def call_stage(stage: str, out, data, config: TrainingConfig, **kw) -> Path:
+    """Run ``stage``'s function of this module on its block of ``config`` with keyword arguments ``kw``
     (seed, steps, resume, fsdp, deadline, on_model: see the functions); ``solaris-train`` and the sprint call it."""
+    sc = config.stages.get(stage)
+    if sc is None:
+        raise ValueError(f"the stage config of preset {config.preset!r} has no {stage!r} block; it has "
+                         f"{sorted(config.stages)}")
     if stage == "vae":
-        return train_vae(out, data, stage_cfg["preset"], stage_cfg["vae"], **kw)
+        return train_vae(out, data, config.preset, sc, **kw)
     if stage == "vae-decoder":
-        return train_vae_decoder(out, data, stage_cfg["preset"], stage_cfg["vae-decoder"], **kw)
+        return train_vae_decoder(out, data, config.preset, sc, **kw)
     if stage in FLOW_STAGES:
-        return train_flow(stage, out, data, stage_cfg[stage], **kw)
+        return train_flow(stage, out, data, sc, **kw)
     if stage == "self-forcing":
-        return train_self_forcing(out, data, stage_cfg["self-forcing"], **kw)
-    if stage == "refiner":
-        return train_refiner(out, data, stage_cfg["refiner"], **kw)
-    raise ValueError(f"unknown stage {stage!r}")
+        return train_self_forcing(out, data, sc, **kw)
+    return train_refiner(out, data, sc, **kw)
 
 
 def _log_json(path: Path, obj) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     with open(path, "a") as f:
         f.write(json.dumps(obj) + "\n")
-
-
-def with_decoder(model: str | Path, decoder_from: str | Path, dest: str | Path) -> Path:
-    """Write ``model`` with the VAE decoder side of ``decoder_from`` (a ``vae-decoder`` stage output) to
-    ``dest``. Allowed only when both share the encoder side bit for bit (encoder, moments conv, latent
-    statistics), i.e. the same latent space: the DiT's latents decode exactly as through that stage."""
-    from training.vae import DECODER_MODULES
-
-    base, donor = WorldModel.load(model), WorldModel.load(decoder_from)
-    (dit, vae, encoder), (_, donor_vae, _) = base.modules(), donor.modules()
-    mine, theirs = nnx.state(vae, nnx.Param), nnx.state(donor_vae, nnx.Param)
-    stats = lambda c: (c.vae.latent_mean, c.vae.latent_std)
-    for name in mine:
-        if name in DECODER_MODULES:
-            continue
-        same = all(np.array_equal(np.asarray(a), np.asarray(b))
-                   for a, b in zip(jax.tree.leaves(mine[name]), jax.tree.leaves(theirs[name])))
-        if not same:
-            raise ValueError(f"{decoder_from}: its VAE {name!r} differs from {model}'s: not the same latent space")
-    if stats(base.config) != stats(donor.config) or base.config.vae.with_decoder_layout(donor.config.vae) != donor.config.vae:
-        raise ValueError(f"{decoder_from}: VAE config / latent statistics differ from {model}'s")
-    WorldModel(base.config.replace(vae=donor.config.vae), dit, donor_vae, encoder).save(dest)
-    return Path(dest)
-
-
-def with_action_conditioning(model: str | Path, dest: str | Path, mouse_input_gain: float | None = None,
-                             camera_warp: tuple[float, float] | None = None) -> Path:
-    """Write ``model`` under another action conditioning, computing the same function (None keeps a setting):
-
-    * ``mouse_input_gain``: the mouse rows of every ``mouse_mlp`` first kernel scaled by old / new gain, so
-      further training moves the camera pathway ``new / old`` times faster per Adam step;
-    * ``camera_warp=(h, w)``: turns on ``DiTConfig.camera_warp`` (latent pixels per degree) with the patch
-      embedding's new input rows (the warped previous latent) at zero; from a model that has it, only its scale
-      changes (the weights are kept: the function changes wherever the camera turns).
-    """
-    from solaris_env.world_model.action_module import rescaled_mouse_kernel
-
-    base = WorldModel.load(model)
-    old = base.config
-    action = dataclasses.replace(
-        old.action,
-        mouse_input_gain=old.action.mouse_input_gain if mouse_input_gain is None else float(mouse_input_gain))
-    dit = old.dit if camera_warp is None else dataclasses.replace(old.dit, camera_warp=tuple(map(float, camera_warp)))
-    if old.dit.camera_warp_enabled and not dit.camera_warp_enabled:
-        raise ValueError(f"{model} was trained with camera_warp={old.dit.camera_warp}; dropping it would drop its "
-                         "patch embedding's trained warp rows")
-    cfg = old.replace(action=action, dit=dit)
-    dit_state, vae_state, encoder_state = base.params
-    if cfg.patch_in_channels != old.patch_in_channels:  # the warped previous latent's rows, at zero
-        pe = dit_state["patch_embedding"]["kernel"]
-        k = pe.get_value()
-        pad = [(0, 0)] * k.ndim
-        pad[-2] = (0, cfg.patch_in_channels - old.patch_in_channels)
-        pe.set_value(jnp.pad(k, pad))
-    kernel = dit_state["blocks"]["action_model"]["mouse_mlp"]["layers"][0]["kernel"]
-    kernel.set_value(rescaled_mouse_kernel(kernel.get_value(), old, action.mouse_input_gain))
-    checkpoint.save(dest, cfg, dict(zip(COMPONENTS, (dit_state, vae_state, encoder_state))))
-    return Path(dest)
-
-
-# ---------------------------------------------------------------------------------------------
-# Shipping
-# ---------------------------------------------------------------------------------------------
-
-DEFAULT_MODEL_DIR = Path(__file__).resolve().parent.parent / "solaris_env" / "assets" / "default"
-
-
-def install_default(model: str | Path, dest: str | Path | None = None, extra_files: tuple = ()) -> Path:
-    """Copy a stage's ``model/`` (weights, either layout, + config; a ``lineage.json`` beside them comes along)
-    and ``extra_files`` (training log, eval summary) to the package's default-model directory, atomically
-    (the env loads it when no checkpoint is named)."""
-    import shutil
-    import tempfile
-
-    from solaris_env.world_model import checkpoint
-
-    model, dest = Path(model), Path(dest) if dest else DEFAULT_MODEL_DIR
-    loaded = WorldModel.load(model)  # refuse to install anything that does not load
-    if (model / "lineage.json").is_file():
-        extra_files = (model / "lineage.json", *extra_files)
-    dest.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{dest.name}.tmp-", dir=dest.parent))
-    try:  # shipped in float16 storage (half the size; loads back as float32)
-        checkpoint.save(tmp / "model", loaded.config, dict(zip(COMPONENTS, loaded.params)), storage_dtype="float16")
-        for f in (tmp / "model").iterdir():
-            f.replace(tmp / f.name)
-        (tmp / "model").rmdir()
-        for f in map(Path, extra_files):
-            shutil.copy2(f, tmp / f.name)
-        tmp.chmod(0o755)  # mkdtemp makes it private; the package directory is world-readable
-        for f in tmp.iterdir():
-            f.chmod(0o644)
-        if dest.exists():
-            old = Path(tempfile.mkdtemp(prefix=f".{dest.name}.old-", dir=dest.parent))
-            dest.replace(old / dest.name)
-            tmp.replace(dest)
-            shutil.rmtree(old)
-        else:
-            tmp.replace(dest)
-    finally:
-        if tmp.exists():
-            shutil.rmtree(tmp)
-    return dest

@@ -28,7 +28,7 @@ A tick (:func:`records_to_vpt_ticks`) carries VPT's fields, from the Mineflayer 
   of ``{type, quantity}``; ``isGuiOpen``/``isGuiInventory`` false; ``stats`` {}.
 
 Round trip (tested): ``vpt_jsonl_to_vectors`` of the export, with the camera sign flipped back
-(:func:`training.data.vpt_camera_to_mineflayer`), equals ``mineflayer_records_to_vectors`` of the
+(``training.vpt.vpt_camera_to_mineflayer``), equals ``mineflayer_records_to_vectors`` of the
 records on all 25 dims (camera to float rounding). mount/dismount/place_entity/place_block/mine have no
 VPT key of their own, but the Mineflayer conversion collapses them into use/sneak/attack exactly as the
 export does, so nothing is lost for the model. Two VPT-converter quirks can differ at tick 0 only:

@@ -52,7 +52,7 @@ def _args(minutes):
 
 
 def test_budget_settings_from_config_and_flag():
-    cfg = {"all": {"time_budget_min": 150, "elastic_stage": "mp-causal", "reserve_min": 12}}
+    cfg = {"time_budget_min": 150, "elastic_stage": "mp-causal", "reserve_min": 12}  # the `all` block
     assert budget_settings(_args(None), cfg) == (9000.0, "mp-causal", 720.0)
     assert budget_settings(_args(30.0), cfg) == (1800.0, "mp-causal", 720.0)  # the flag wins
     assert budget_settings(_args(0.0), cfg)[0] is None  # 0 = no budget
@@ -61,8 +61,8 @@ def test_budget_settings_from_config_and_flag():
 
 def test_budget_settings_reject_bad_values():
     with pytest.raises(ValueError, match="elastic_stage"):
-        budget_settings(_args(None), {"all": {"elastic_stage": "mp-causl"}})
+        budget_settings(_args(None), {"elastic_stage": "mp-causl"})
     with pytest.raises(ValueError, match="time budget"):
         budget_settings(_args(-5.0), {})
     with pytest.raises(ValueError, match="reserve_min"):
-        budget_settings(_args(None), {"all": {"reserve_min": -1}})
+        budget_settings(_args(None), {"reserve_min": -1})

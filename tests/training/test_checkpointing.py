@@ -325,16 +325,17 @@ def worker(run_dir: str, data_root: str, kill_at_save: int | None) -> None:
 
     from solaris_env.world_model.config import preset
     from solaris_env.world_model.dit import WorldDiT
-    from training import data as td
     from training.checkpointing import Checkpointer, abstract_state
     from training.distributed import make_mesh, shard_batch, shard_train_state
+    from training.duet import DuetDataset
     from training.metrics import MetricsLogger
+    from training.samplers import MultiplayerSegmentSampler, next_batch
     from training.step import TrainState, make_optimizer, make_train_step
 
     run_dir = Path(run_dir)
     cfg = preset("test")
-    dataset = td.DuetDataset(data_root, "train", obs_size=(cfg.frame_height, cfg.frame_width))
-    sampler = td.MultiplayerSegmentSampler(dataset, CLIP_FRAMES, seed=5)
+    dataset = DuetDataset(data_root, "train", obs_size=(cfg.frame_height, cfg.frame_width))
+    sampler = MultiplayerSegmentSampler(dataset, CLIP_FRAMES, seed=5)
     graphdef, abstract = nnx.split(nnx.eval_shape(lambda: WorldDiT(cfg, rngs=nnx.Rngs(0))))
     rng = np.random.default_rng(0)
     params = jax.tree.map(lambda x: jnp.asarray(rng.normal(size=x.shape) * 0.05, x.dtype), abstract)
@@ -354,11 +355,11 @@ def worker(run_dir: str, data_root: str, kill_at_save: int | None) -> None:
         (run_dir / "resumed.json").write_text(json.dumps({"resumed_from": latest,
                                                           "sampler_step_after_restore": sampler.step}))
     log = MetricsLogger(run_dir / "metrics.jsonl", resume_step=start)
-    replay = td.MultiplayerSegmentSampler(dataset, CLIP_FRAMES, seed=5)  # names the segments of each batch
+    replay = MultiplayerSegmentSampler(dataset, CLIP_FRAMES, seed=5)  # names the segments of each batch
     for step in range(start, TOTAL_STEPS):
         replay.load_state_dict(sampler.state_dict())
         segments = [list(map(int, segment)) for segment in replay.sample(BATCH)]
-        raw = td.next_batch(dataset, sampler, BATCH)
+        raw = next_batch(dataset, sampler, BATCH)
         state, metrics = train_step(state, shard_batch(_features(raw, cfg), mesh))
         done = step + 1
         log.log(done, loss=float(metrics["loss"]), segments=segments,

@@ -1,12 +1,13 @@
 """Stage and sprint configs that extend another config (``training.config_files``)."""
 
+import dataclasses
 import json
 
 import pytest
 
 from training.config_files import merge, read_json_config
 from training.sprint import SprintConfig
-from training.train import load_stage_config
+from training.stage_config import load_stage_config
 
 
 def test_merge_overrides_leaves_and_merges_objects():
@@ -38,7 +39,7 @@ def test_cycles_missing_bases_and_bad_names_are_named(tmp_path):
 
 def test_tiny16_trains_like_tiny():
     tiny, tiny16 = load_stage_config("tiny"), load_stage_config("tiny16")
-    assert tiny16["preset"] == "tiny16" and {**tiny16, "preset": "tiny"} == tiny
+    assert tiny16.preset == "tiny16" and dataclasses.replace(tiny16, preset="tiny") == tiny
     sprint = SprintConfig.load("tiny16")
     assert (sprint.preset, sprint.stage_config) == ("tiny16", "tiny16")
     assert sprint.fractions["vae"] > SprintConfig.load("tiny").fractions["vae"]  # the 4x latent needs more updates

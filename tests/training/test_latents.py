@@ -9,9 +9,13 @@ import pytest
 
 from solaris_env.world_model.config import preset
 from solaris_env.world_model.world_model import WorldModel, frames_to_model
-from training import data as D
+from training.duet import DuetDataset
+from training.episodes import SegmentMP, SegmentSP
 from training.latents import latent_clips, make_prepare_latents, snap_start
+from training.samplers import MultiplayerSegmentSampler
 from training.step import prepare_batch
+from training.video_io import read_frames
+from training.vpt import VPTDataset
 
 F16_ATOL = 2e-2  # latents are stored in float16
 
@@ -34,7 +38,7 @@ def modules(cfg):
 
 @pytest.fixture(scope="module")
 def clips(root, cfg, modules, tmp_path_factory):
-    dataset = D.DuetDataset(root, "train", obs_size=(32, 32))
+    dataset = DuetDataset(root, "train", obs_size=(32, 32))
     return latent_clips(dataset, cfg, modules[1], tmp_path_factory.mktemp("latents"), canonical_dir=root / "duet")
 
 
@@ -45,10 +49,10 @@ def test_snap_start_puts_the_first_frame_on_the_anchor_grid():
 
 def test_clip_from_frame_zero_equals_encoding_the_clip(clips, modules, cfg):
     num_frames = 9
-    x0, first, act = clips.load(D.SegmentMP(0, 0, 0), num_frames)
+    x0, first, act = clips.load(SegmentMP(0, 0, 0), num_frames)
     # start 0 snaps to -1: frames [0, 9) of each bot, a no-op action in front
     rec1, rec2 = clips.dataset.recordings(0)
-    video = np.stack([D.read_frames(r.video, 0, num_frames, (32, 32)) for r in (rec1, rec2)])  # (P, T, H, W, 3)
+    video = np.stack([read_frames(r.video, 0, num_frames, (32, 32)) for r in (rec1, rec2)])  # (P, T, H, W, 3)
     expected = np.asarray(modules[1].encode(frames_to_model(jnp.asarray(video))))
     np.testing.assert_allclose(x0, expected, atol=F16_ATOL)
     np.testing.assert_array_equal(first, video[:, 0])
@@ -58,19 +62,19 @@ def test_clip_from_frame_zero_equals_encoding_the_clip(clips, modules, cfg):
 
 
 def test_anchored_clip_latent_zero_is_its_first_frame_alone(clips, modules):
-    x0, first, _ = clips.load(D.SegmentMP(0, 10, 10), 9)  # snaps to 7: first frame 8
+    x0, first, _ = clips.load(SegmentMP(0, 10, 10), 9)  # snaps to 7: first frame 8
     rec1 = clips.dataset.recordings(0)[0]
-    frame8 = D.read_frames(rec1.video, 8, 9, (32, 32))
+    frame8 = read_frames(rec1.video, 8, 9, (32, 32))
     np.testing.assert_array_equal(first[0], frame8[0])
     alone = np.asarray(modules[1].encode(frames_to_model(jnp.asarray(frame8[None]))))[0, 0]
     np.testing.assert_allclose(x0[0, 0], alone, atol=F16_ATOL)
 
 
 def test_prepared_batch_matches_prepare_batch(clips, modules, cfg):
-    x0, first, act = clips.load(D.SegmentMP(0, 0, 0), 9)  # a clip from frame 0: exactly the clip's stream
-    assert len(clips.next_batch(D.MultiplayerSegmentSampler(clips.dataset, 9, seed=0), 2, 9)["x0"]) == 2
+    x0, first, act = clips.load(SegmentMP(0, 0, 0), 9)  # a clip from frame 0: exactly the clip's stream
+    assert len(clips.next_batch(MultiplayerSegmentSampler(clips.dataset, 9, seed=0), 2, 9)["x0"]) == 2
     rec = clips.dataset.recordings(0)
-    obs = np.stack([D.read_frames(r.video, 0, 9, (32, 32)) for r in rec], axis=1)  # (T, P, H, W, 3)
+    obs = np.stack([read_frames(r.video, 0, 9, (32, 32)) for r in rec], axis=1)  # (T, P, H, W, 3)
     got = make_prepare_latents(cfg, modules[1], modules[2])({"x0": x0[None], "first": first[None], "act": act[None]})
     want = prepare_batch(modules[1], modules[2], jnp.asarray(obs[None]), jnp.asarray(act[None]), cfg)
     for key in ("x0", "cond"):
@@ -81,16 +85,16 @@ def test_prepared_batch_matches_prepare_batch(clips, modules, cfg):
 
 def test_vpt_export_shares_the_duet_latents(root, cfg, modules, clips):
     clips.build()
-    vpt = D.VPTDataset(root, "train", obs_size=(32, 32))
+    vpt = VPTDataset(root, "train", obs_size=(32, 32))
     shared = latent_clips(vpt, cfg, modules[1], clips.cache.dir.parent, canonical_dir=root / "duet")
     shared.build()
     assert shared.cache.stats["misses"] == 0 and shared.cache.stats["hits"] == 2 * clips.dataset.num_episodes
-    x0, _, act = shared.load(D.SegmentSP(1, 20), 9)
+    x0, _, act = shared.load(SegmentSP(1, 20), 9)
     assert x0.shape == (1, 3, 4, 4, cfg.latent_channels) and act.shape == (9, 1, 25)
 
 
 def test_build_with_threads_writes_the_same_cache_as_one_worker(root, cfg, modules, tmp_path):
-    dataset = D.DuetDataset(root, "train", obs_size=(32, 32))
+    dataset = DuetDataset(root, "train", obs_size=(32, 32))
     one = latent_clips(dataset, cfg, modules[1], tmp_path / "one", canonical_dir=root / "duet")
     many = latent_clips(dataset, cfg, modules[1], tmp_path / "many", canonical_dir=root / "duet")
     videos = 2 * dataset.num_episodes
@@ -107,11 +111,11 @@ def test_build_with_threads_writes_the_same_cache_as_one_worker(root, cfg, modul
 def test_build_stops_at_its_time_limit_and_the_rest_encode_on_first_use(root, cfg, modules, tmp_path):
     import time
 
-    dataset = D.DuetDataset(root, "train", obs_size=(32, 32))
+    dataset = DuetDataset(root, "train", obs_size=(32, 32))
     late = latent_clips(dataset, cfg, modules[1], tmp_path / "late", canonical_dir=root / "duet")
     assert late.build(workers=1, until=time.time() - 1) == 0  # past the limit: nothing started
     full = latent_clips(dataset, cfg, modules[1], tmp_path / "full", canonical_dir=root / "duet")
     full.build(workers=1)
-    segment = D.SegmentMP(dataset.valid_ids[0], 8, 8)
+    segment = SegmentMP(dataset.valid_ids[0], 8, 8)
     for a, b in zip(late.load(segment, 9), full.load(segment, 9)):  # encoded on demand, the same latents
         np.testing.assert_array_equal(a, b)

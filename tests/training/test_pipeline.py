@@ -13,7 +13,8 @@ import pytest
 
 from training import cli
 from training.metrics import read_metrics
-from training.train import STAGES, model_dir
+from training.stage_config import STAGES
+from training.train import model_dir
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -172,7 +173,7 @@ def test_camera_warp_retrofit_computes_the_same(run, tmp_path):
     import numpy as np
 
     from solaris_env.world_model.world_model import WorldModel
-    from training.train import with_action_conditioning
+    from training.surgery import with_action_conditioning
 
     src = model_dir(run, "mp-causal")
     dest = tmp_path / "warp"

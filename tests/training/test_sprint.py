@@ -69,7 +69,7 @@ def test_shard_writer_refuses_what_does_not_fit_and_loader_refuses_incomplete_se
 def test_the_default_model_fits_the_transport_as_float16_shards(tmp_path):
     """The shipped tiny model: 16 MiB shards, 64 MiB in all, as the GPU sprint exports it."""
     from solaris_env.world_model.world_model import WorldModel
-    from training.train import DEFAULT_MODEL_DIR
+    from training.surgery import DEFAULT_MODEL_DIR
 
     model = WorldModel.load(DEFAULT_MODEL_DIR)
     path = checkpoint.save(tmp_path / "model", model.config, _params(model), storage_dtype="float16",
@@ -90,7 +90,7 @@ def test_plan_drops_the_smallest_shares_first_and_splits_the_rest_by_fraction():
 def test_config_errors_name_the_field():
     data = json.loads((cli.Path(__file__).resolve().parents[2] / "training/configs/sprint-tiny.json").read_text())
     cfg = SprintConfig.from_dict(data)
-    assert stage_blocks(cfg, cfg.device("gpu"))["mp-causal"]["steps"] >= 10**9
+    assert stage_blocks(cfg, cfg.device("gpu")).stages["mp-causal"].steps >= 10**9
     with pytest.raises(ValueError, match="fractions_from_init must not name"):
         SprintConfig.from_dict({**data, "fractions_from_init": {"vae": 1.0}})
     with pytest.raises(ValueError, match=r"devices.gpu.reserve_s must be a number >= 0"):

@@ -76,7 +76,7 @@ def _perturbed(model, module: str, seed: int) -> WorldModel:
 
 
 def test_with_decoder_takes_the_decoder_and_refuses_another_encoder(tmp_path):
-    from training.train import with_decoder
+    from training.surgery import with_decoder
 
     base = WorldModel.from_preset("test", seed=0)
     base.save(tmp_path / "base")
@@ -96,7 +96,7 @@ def test_relayout_decoder_keeps_the_latent_space_and_warm_starts_the_decoder(tmp
     """A trained VAE rebuilt with another decoder layout (vae-decoder stage): the encoder side is copied bit
     for bit, decoder leaves of the same path and shape are copied, the rest (the new head) is fresh; and
     with_decoder puts that decoder and its layout into a model of the same encoder."""
-    from training.train import relayout_decoder, with_decoder
+    from training.surgery import relayout_decoder, with_decoder
 
     base = WorldModel.from_preset("test", seed=0)
     cfg = base.config

@@ -1,0 +1,230 @@
+"""The stage configs of ``solaris-train`` (docs/training.md, "Stage configs"): ``training/configs/<preset>.json``
+(its ``extends`` chain resolved by ``training.config_files``) validated into frozen dataclasses, one per stage
+kind, with every default in this module.
+
+A block is built with ``from_dict(block, where)``: an unknown key, a missing required key, a value of the wrong
+type or outside its range raises a ValueError that names ``where`` (the file and the stage), the field and what
+it expects. ``TrainingConfig`` is the whole file: the preset, the seed, the ``collect`` block
+(``training.collect``), the ``all`` block (``training.cli.budget_settings``) and one block per stage. The sprint
+applies its overrides to ``to_dict()``'s blocks and validates the result again (``training.sprint.stage_blocks``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import types
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from training.config_files import read_json_config
+
+CONFIG_DIR = Path(__file__).parent / "configs"
+STAGES = ("vae", "vae-decoder", "sp", "mp-bidirectional", "mp-causal", "self-forcing", "refiner")  # ``all``, in order
+EXTRA_STAGES = ("mp-rollout",)  # not part of ``all``: run by name
+
+
+def _field(default=dataclasses.MISSING, *, low=None, above=None, below=None, choices=None):
+    """A dataclass field with its allowed values: ``low <= x``, ``above < x``, ``x < below``, ``x in choices``."""
+    return field(default=default, metadata={"low": low, "above": above, "below": below, "choices": choices})
+
+
+def _expected(kind, meta: dict) -> str:
+    """What a field takes, in words: "an int >= 1", "a number in [0, 1)", "one of ('mse', 'log_mse')"."""
+    if meta.get("choices") is not None:
+        return f"one of {meta['choices']}"
+    if kind is bool:
+        return "true or false"
+    if kind is str:
+        return "a string"
+    if typing.get_origin(kind) is tuple:
+        return f"a list of {len(typing.get_args(kind))} numbers"
+    if dataclasses.is_dataclass(kind):
+        return f"an object with the keys of {kind.__name__}"
+    words = "an int" if kind is int else "a number"
+    low, above, below = meta.get("low"), meta.get("above"), meta.get("below")
+    if low is not None and below is not None:
+        return f"{words} in [{low:g}, {below:g})"
+    bounds = [f">= {low:g}" if low is not None else None, f"> {above:g}" if above is not None else None,
+              f"< {below:g}" if below is not None else None]
+    return " ".join([words, *filter(None, bounds)])
+
+
+def _convert(value, kind, meta: dict, where: str, name: str):
+    """``value`` checked against the field's type and range (ints accepted for numbers, lists for tuples)."""
+    optional = isinstance(kind, types.UnionType)  # ``X | None``
+    if optional:
+        if value is None:
+            return None
+        kind = next(k for k in typing.get_args(kind) if k is not type(None))
+    if dataclasses.is_dataclass(kind) and isinstance(value, dict):
+        return kind.from_dict(value, f"{where}: {name}")
+    number = isinstance(value, (int, float)) and not isinstance(value, bool)
+    if typing.get_origin(kind) is tuple:
+        ok = isinstance(value, (list, tuple)) and len(value) == len(typing.get_args(kind)) and all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
+        value = tuple(float(v) for v in value) if ok else value
+    elif kind is int:
+        ok = number and isinstance(value, int)
+    elif kind is float:
+        ok, value = number, float(value) if number else value
+    else:
+        ok = isinstance(value, kind)
+    low, above, below, choices = (meta.get(k) for k in ("low", "above", "below", "choices"))
+    ok = ok and (low is None or value >= low) and (above is None or value > above) and (
+        below is None or value < below) and (choices is None or value in choices)
+    if not ok:
+        expected = _expected(kind, meta) + (" or null" if optional else "")
+        raise ValueError(f"{where}: {name} must be {expected}, got {value!r}")
+    return value
+
+
+@dataclass(frozen=True, kw_only=True)
+class _Block:
+    """A validated config block (module docstring)."""
+
+    @classmethod
+    def from_dict(cls, block: dict, where: str):
+        fields = {f.name: f for f in dataclasses.fields(cls)}
+        if not isinstance(block, dict):
+            raise ValueError(f"{where}: expected an object with the keys of {cls.__name__}, got {block!r}")
+        unknown = sorted(set(block) - set(fields))
+        if unknown:
+            raise ValueError(f"{where}: unknown keys {unknown}; {cls.__name__} takes {sorted(fields)}")
+        missing = sorted(n for n, f in fields.items() if n not in block and f.default is dataclasses.MISSING)
+        if missing:
+            raise ValueError(f"{where}: missing keys {missing} (required by {cls.__name__})")
+        hints = typing.get_type_hints(cls)
+        return cls(**{n: _convert(v, hints[n], fields[n].metadata, where, n) for n, v in block.items()})
+
+
+@dataclass(frozen=True, kw_only=True)
+class StageConfig(_Block):
+    """What every stage has: its updates, batch, clip length and loop cadences (``train.LoopSpec``;
+    ``ckpt_every`` 0: no checkpoints)."""
+
+    steps: int = _field(low=1)
+    batch_size: int = _field(low=1)  # global: split over the processes (``train.local_batch_size``)
+    num_frames: int = _field(low=1)  # frames of a training clip
+    log_every: int = _field(low=1)
+    ckpt_every: int = _field(low=0)
+
+
+@dataclass(frozen=True, kw_only=True)
+class VAEDecoderStageConfig(StageConfig):
+    """``vae-decoder``: the VAE's decoder side fine-tuned on long clips (``train.train_vae_decoder``)."""
+
+    lr: float = _field(above=0)
+    sample_every: int = _field(low=0)  # held-out PSNR (the VAE: and a reconstruction) this often; 0: never
+    eval_clips: int = _field(low=1)  # held-out clips of the PSNR
+    rescan_s: float | None = _field(None, low=0)  # the sprint's growing data (``train.duet_stream``); None, 0: off
+
+
+@dataclass(frozen=True, kw_only=True)
+class VAEStageConfig(VAEDecoderStageConfig):
+    """``vae``: the decoder stage's keys and ``stats_clips``, the clips of the latent statistics."""
+
+    stats_clips: int = _field(low=1)
+
+
+@dataclass(frozen=True, kw_only=True)
+class FlowStageConfig(StageConfig):
+    """``sp``, ``mp-bidirectional``, ``mp-causal``, ``mp-rollout``: flow matching of the DiT (``train.train_flow``).
+    ``lr_decay_steps``: a linear LR cool-down over the last N updates (``step.scheduled_lr``); ``ema_decay`` > 0:
+    the stage saves that exponential moving average of the DiT's parameters. Both off: the spec's recipe."""
+
+    lr: float = _field(above=0)
+    sample_every: int = _field(low=0)
+    lr_decay_steps: int = _field(0, low=0)
+    ema_decay: float = _field(0.0, low=0, below=1)
+    rescan_s: float | None = _field(None, low=0)
+
+
+@dataclass(frozen=True, kw_only=True)
+class SelfForcingStageConfig(StageConfig):
+    """``self-forcing``: Checkpointed Self Forcing with DMD (``train.train_self_forcing``; docs/model.md §6.3);
+    ``generator``: how the generator's rollout is differentiated."""
+
+    generator_lr: float = _field(above=0)
+    critic_lr: float = _field(above=0)
+    sample_every: int = _field(low=0)
+    generator: str = _field("checkpointed", choices=("checkpointed", "naive"))
+    rescan_s: float | None = _field(None, low=0)
+
+
+@dataclass(frozen=True, kw_only=True)
+class RefinerLayout(_Block):
+    """The refiner block's network (``RefinerConfig``; ``actions``: conditioned on the actions)."""
+
+    width: int = _field(low=1)
+    pool: int = _field(low=1)
+    actions: bool = _field()
+    camera_shift: tuple[float, float] = _field((0.0, 0.0))
+
+
+@dataclass(frozen=True, kw_only=True)
+class RefinerStageConfig(StageConfig):
+    """``refiner``: the temporal refiner trained on the rollouts of ``init_from``'s model (``train.train_refiner``,
+    ``training.refine``: ``rollout_parts`` files of ``segments_per_part`` segments of ``num_frames`` frames)."""
+
+    lr: float = _field(above=0)
+    rollout_parts: int = _field(low=1)
+    segments_per_part: int = _field(low=1)
+    refiner: RefinerLayout = _field()
+    init_from: str = _field("self-forcing", choices=tuple(s for s in STAGES + EXTRA_STAGES if s != "refiner"))
+    loss: str = _field("mse", choices=("mse", "log_mse"))  # training.refine.LOSSES
+
+
+STAGE_CONFIGS: dict[str, type[StageConfig]] = {
+    "vae": VAEStageConfig, "vae-decoder": VAEDecoderStageConfig, "sp": FlowStageConfig,
+    "mp-bidirectional": FlowStageConfig, "mp-causal": FlowStageConfig, "mp-rollout": FlowStageConfig,
+    "self-forcing": SelfForcingStageConfig, "refiner": RefinerStageConfig}
+
+
+@dataclass(frozen=True)
+class TrainingConfig:
+    """A stage-config file: ``preset``, ``seed``, the ``collect`` block (None: ``all`` cannot record data), the
+    ``all`` block and ``stages`` ({stage: its block}; every stage of ``STAGES``, ``EXTRA_STAGES`` optional)."""
+
+    preset: str
+    stages: dict
+    seed: int = 0
+    collect: dict | None = None
+    all: dict = field(default_factory=dict)
+
+    @classmethod
+    def from_dict(cls, data: dict, where: str) -> TrainingConfig:
+        top = ("preset", "seed", "collect", "all")
+        unknown = sorted(set(data) - set(top) - set(STAGE_CONFIGS))
+        if unknown:
+            raise ValueError(f"{where}: unknown keys {unknown}; expected {list(top)} and the stages "
+                             f"{list(STAGES + EXTRA_STAGES)}")
+        missing = [s for s in ("preset", *STAGES) if s not in data]
+        if missing:
+            raise ValueError(f"{where}: missing keys {missing}")
+        if not isinstance(data["preset"], str) or not data["preset"]:
+            raise ValueError(f"{where}: preset must be a preset name, got {data['preset']!r}")
+        seed = data.get("seed", 0)
+        if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+            raise ValueError(f"{where}: seed must be an int >= 0, got {seed!r}")
+        for name in ("collect", "all"):
+            if name in data and not isinstance(data[name], dict):
+                raise ValueError(f"{where}: {name} must be an object, got {data[name]!r}")
+        stages = {s: STAGE_CONFIGS[s].from_dict(data[s], f"{where} [{s}]") for s in STAGE_CONFIGS if s in data}
+        return cls(data["preset"], stages, seed, data.get("collect"), data.get("all", {}))
+
+    def to_dict(self) -> dict:
+        """The file's layout (``from_dict(to_dict())`` gives this config back), every default written out."""
+        out = {"preset": self.preset, "seed": self.seed, "all": self.all}
+        if self.collect is not None:
+            out["collect"] = self.collect
+        return {**out, **{s: dataclasses.asdict(block) for s, block in self.stages.items()}}
+
+
+def load_stage_config(preset_name: str, path: str | Path | None = None) -> TrainingConfig:
+    """The validated stage config: ``path`` or ``training/configs/<preset>.json``."""
+    path = Path(path) if path else CONFIG_DIR / f"{preset_name}.json"
+    if not path.is_file():
+        raise FileNotFoundError(f"no stage config {path}; presets with one: "
+                                f"{sorted(p.stem for p in CONFIG_DIR.glob('*.json'))}")
+    return TrainingConfig.from_dict(read_json_config(path), str(path))

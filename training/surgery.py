@@ -1,0 +1,142 @@
+"""Model surgery: functions that change a trained model's layout or weights without training it
+(docs/training.md, "Modules"). Each writes a new model directory (``checkpoint.save``) or returns a
+rebuilt module; none draws data or takes an optimiser step.
+
+* ``relayout_decoder``: a VAE rebuilt in another decoder layout, warm-started (the ``vae-decoder`` stage);
+* ``with_decoder``: a model given the decoder of a ``vae-decoder`` stage of the same latent space
+  (``solaris-train with-decoder``);
+* ``with_action_conditioning``: a model under another action conditioning computing the same function
+  (``solaris-train action-conditioning``);
+* ``install_default``: a model copied, as float16 single-file weights, to the package's default-model
+  directory (``solaris-train install``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import shutil
+import tempfile
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import nnx
+
+from solaris_env.world_model import checkpoint
+from solaris_env.world_model.action_module import rescaled_mouse_kernel
+from solaris_env.world_model.components import COMPONENTS
+from solaris_env.world_model.config import VAEConfig
+from solaris_env.world_model.vae import CausalVideoVAE
+from solaris_env.world_model.world_model import WorldModel
+from training.vae import DECODER_MODULES
+
+DEFAULT_MODEL_DIR = Path(__file__).resolve().parent.parent / "solaris_env" / "assets" / "default"
+
+
+def relayout_decoder(vae, target: VAEConfig, seed: int):
+    """``vae`` rebuilt with ``target``'s (decoder) layout: every parameter whose path and shape exist in
+    both is copied (so the encoder side, and the latent space, are exactly ``vae``'s), the rest is
+    freshly initialised. Returns (the new VAE, the copied decoder-side paths as strings)."""
+    fresh = CausalVideoVAE(target, rngs=nnx.Rngs(seed))
+    old = dict(nnx.to_flat_state(nnx.state(vae, nnx.Param)))
+    new = nnx.state(fresh, nnx.Param)
+    copied = []
+    for path, var in nnx.to_flat_state(new):
+        src = old.get(path)
+        if src is not None and src.get_value().shape == var.get_value().shape:
+            var.set_value(src.get_value())
+            if path[0] in DECODER_MODULES:
+                copied.append("/".join(map(str, path)))
+        elif path[0] not in DECODER_MODULES:
+            raise ValueError(f"relayout_decoder: encoder-side parameter {'/'.join(map(str, path))} does not match "
+                             f"(target layout {target.decoder_layout()} must change only the decoder)")
+    nnx.update(fresh, new)
+    return fresh, copied
+
+
+def with_decoder(model: str | Path, decoder_from: str | Path, dest: str | Path) -> Path:
+    """Write ``model`` with the VAE decoder side of ``decoder_from`` (a ``vae-decoder`` stage output) to
+    ``dest``. Allowed only when both share the encoder side bit for bit (encoder, moments conv, latent
+    statistics), i.e. the same latent space: the DiT's latents decode exactly as through that stage."""
+    base, donor = WorldModel.load(model), WorldModel.load(decoder_from)
+    (dit, vae, encoder), (_, donor_vae, _) = base.modules(), donor.modules()
+    mine, theirs = nnx.state(vae, nnx.Param), nnx.state(donor_vae, nnx.Param)
+    stats = lambda c: (c.vae.latent_mean, c.vae.latent_std)
+    for name in mine:
+        if name in DECODER_MODULES:
+            continue
+        same = all(np.array_equal(np.asarray(a), np.asarray(b))
+                   for a, b in zip(jax.tree.leaves(mine[name]), jax.tree.leaves(theirs[name])))
+        if not same:
+            raise ValueError(f"{decoder_from}: its VAE {name!r} differs from {model}'s: not the same latent space")
+    if stats(base.config) != stats(donor.config) or base.config.vae.with_decoder_layout(donor.config.vae) != donor.config.vae:
+        raise ValueError(f"{decoder_from}: VAE config / latent statistics differ from {model}'s")
+    WorldModel(base.config.replace(vae=donor.config.vae), dit, donor_vae, encoder).save(dest)
+    return Path(dest)
+
+
+def with_action_conditioning(model: str | Path, dest: str | Path, mouse_input_gain: float | None = None,
+                             camera_warp: tuple[float, float] | None = None) -> Path:
+    """Write ``model`` under another action conditioning, computing the same function (None keeps a setting):
+
+    * ``mouse_input_gain``: the mouse rows of every ``mouse_mlp`` first kernel scaled by old / new gain, so
+      further training moves the camera pathway ``new / old`` times faster per Adam step;
+    * ``camera_warp=(h, w)``: turns on ``DiTConfig.camera_warp`` (latent pixels per degree) with the patch
+      embedding's new input rows (the warped previous latent) at zero; from a model that has it, only its scale
+      changes (the weights are kept: the function changes wherever the camera turns).
+    """
+    base = WorldModel.load(model)
+    old = base.config
+    action = dataclasses.replace(
+        old.action,
+        mouse_input_gain=old.action.mouse_input_gain if mouse_input_gain is None else float(mouse_input_gain))
+    dit = old.dit if camera_warp is None else dataclasses.replace(old.dit, camera_warp=tuple(map(float, camera_warp)))
+    if old.dit.camera_warp_enabled and not dit.camera_warp_enabled:
+        raise ValueError(f"{model} was trained with camera_warp={old.dit.camera_warp}; dropping it would drop its "
+                         "patch embedding's trained warp rows")
+    cfg = old.replace(action=action, dit=dit)
+    dit_state, vae_state, encoder_state = base.params
+    if cfg.patch_in_channels != old.patch_in_channels:  # the warped previous latent's rows, at zero
+        pe = dit_state["patch_embedding"]["kernel"]
+        k = pe.get_value()
+        pad = [(0, 0)] * k.ndim
+        pad[-2] = (0, cfg.patch_in_channels - old.patch_in_channels)
+        pe.set_value(jnp.pad(k, pad))
+    kernel = dit_state["blocks"]["action_model"]["mouse_mlp"]["layers"][0]["kernel"]
+    kernel.set_value(rescaled_mouse_kernel(kernel.get_value(), old, action.mouse_input_gain))
+    checkpoint.save(dest, cfg, dict(zip(COMPONENTS, (dit_state, vae_state, encoder_state))))
+    return Path(dest)
+
+
+def install_default(model: str | Path, dest: str | Path | None = None, extra_files: tuple = ()) -> Path:
+    """Copy a stage's ``model/`` (weights, either layout, + config; a ``lineage.json`` beside them comes along)
+    and ``extra_files`` (training log, eval summary) to the package's default-model directory, atomically
+    (the env loads it when no checkpoint is named)."""
+    model, dest = Path(model), Path(dest) if dest else DEFAULT_MODEL_DIR
+    loaded = WorldModel.load(model)  # refuse to install anything that does not load
+    if (model / "lineage.json").is_file():
+        extra_files = (model / "lineage.json", *extra_files)
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{dest.name}.tmp-", dir=dest.parent))
+    try:  # shipped in float16 storage (half the size; loads back as float32)
+        checkpoint.save(tmp / "model", loaded.config, dict(zip(COMPONENTS, loaded.params)), storage_dtype="float16")
+        for f in (tmp / "model").iterdir():
+            f.replace(tmp / f.name)
+        (tmp / "model").rmdir()
+        for f in map(Path, extra_files):
+            shutil.copy2(f, tmp / f.name)
+        tmp.chmod(0o755)  # mkdtemp makes it private; the package directory is world-readable
+        for f in tmp.iterdir():
+            f.chmod(0o644)
+        if dest.exists():
+            old = Path(tempfile.mkdtemp(prefix=f".{dest.name}.old-", dir=dest.parent))
+            dest.replace(old / dest.name)
+            tmp.replace(dest)
+            shutil.rmtree(old)
+        else:
+            tmp.replace(dest)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp)
+    return dest
