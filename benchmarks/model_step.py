@@ -12,7 +12,7 @@ Writes ``benchmarks/results/model_step.json`` with, for every batch size B (worl
 * ``parts_s``: the parts of a step jitted and timed on their own, in the same rounds as the step (each
   round times one step then each part once, so all see the same background load): ``denoise`` (every
   DiT pass: the few-step sampler's len(ar_timesteps) passes, the first of them fused with the commit of
-  the previous latent frame -- ``WorldDiT.commit_denoise_step_cached``: one pass of two frames, the
+  the previous latent frame -- ``WorldDiT.decode(..., commit=1)``: one pass of two frames, the
   clean one at t = 0 written to the KV cache), ``decode`` (the streaming VAE decode of the new latent
   frame), and ``first_pass`` (the fused commit + first denoising pass alone; included in ``denoise``).
   The commit has no time of its own: it is the first of the two frames of that pass.

@@ -178,7 +178,7 @@ def sample_exit_index(key: jax.Array, cfg: WorldModelConfig) -> jax.Array:
 
 
 def _frame_inputs(cfg: WorldModelConfig, batch: dict, i: jax.Array) -> tuple:
-    """(cond, context, mouse window, keyboard window) of latent frame i, as ``decode_step`` takes them."""
+    """(cond, context, mouse window, keyboard window) of latent frame i (``decode`` takes the context's K/V)."""
     cond = jax.lax.dynamic_slice_in_dim(batch["cond"], i, 1, axis=2)  # (B, P, 1, h, w, Cc)
     return cond, batch["context"], window_at(batch["mouse"], cfg, i), window_at(batch["keyboard"], cfg, i)
 
@@ -193,7 +193,8 @@ def _denoise_to_exit(dit: WorldDiT, z: jax.Array, inputs: tuple, cache: kv_cache
     t_shape = z.shape[:3]
 
     def body(j, z_t):
-        v, _ = dit.decode_step(z_t, jnp.full(t_shape, timesteps[j]), *inputs, cache, i)  # cache update discarded
+        v, _ = dit.decode(z_t, jnp.full(t_shape, timesteps[j]), inputs[0], dit.context_kv(inputs[1]), *inputs[2:],
+                          cache, i)
         fresh_eps = jax.random.normal(keys[j], z_t.shape, jnp.float32)
         return flow_matching.sampler_step(z_t, v, sigmas[j], sigmas[j + 1], fresh_eps)
 
@@ -227,9 +228,11 @@ def rollout(graphdef: nnx.GraphDef, params, rest, batch: dict, key: jax.Array, e
         inputs = _frame_inputs(cfg, batch, i)
         z = jax.random.normal(k_init, frame_shape, jnp.float32)
         x_s = _denoise_to_exit(frozen, z, inputs, jax.lax.stop_gradient(cache), i, exit_index, timesteps, k_renoise)
-        v, _ = dit.decode_step(x_s, jnp.full((b, p, 1), t_exit), *inputs, cache, i)
+        v, _ = dit.decode(x_s, jnp.full((b, p, 1), t_exit), inputs[0], dit.context_kv(inputs[1]), *inputs[2:],
+                          cache, i)
         x0 = flow_matching.x0_from_velocity(x_s, v, sigma_exit)
-        _, cache = dit.decode_step(jax.lax.stop_gradient(x0), jnp.zeros((b, p, 1)), *inputs, cache, i)  # commit
+        _, cache = dit.decode(jax.lax.stop_gradient(x0), jnp.zeros((b, p, 1)), inputs[0], dit.context_kv(inputs[1]),
+                              *inputs[2:], cache, i, commit=1)  # commit
         return cache, (x0[:, :, 0], x_s[:, :, 0])
 
     cache = kv_cache.init_cache(cfg, b)

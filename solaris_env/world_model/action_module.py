@@ -190,15 +190,14 @@ class ActionModule(nnx.Module):
         return self._keyboard_out(x_BFLD, attention(q, k, v, frame_mask_FF, self.impl))
 
     def decode(self, x_BFLD: jax.Array, mouse_BFWA: jax.Array, keyboard_BFWA: jax.Array, angles_FJ: jax.Array,
-               cache_mouse: kv_cache.KVCache, cache_keyboard: kv_cache.KVCache, keep: int | None = None):
+               cache_mouse: kv_cache.KVCache, cache_keyboard: kv_cache.KVCache, commit: int):
         """F new frames against the rolling caches, heads-major (mouse (B*L, N, W, K), keyboard (B, N, W, K)).
 
         Frame f attends to the cache slots still valid after f + 1 frames are appended and to the new
         frames <= f (for F = 1: the cache with the frame appended). Returns (x_BFLD, new_cache_mouse,
-        new_cache_keyboard); the caches get the first ``keep`` new frames (default all).
+        new_cache_keyboard); the caches get the first ``commit`` new frames (0: the caches as they were).
         """
         f, s = x_BFLD.shape[1], x_BFLD.shape[2]
-        keep = f if keep is None else keep
 
         def attend(q, k_new, v_new, cache, repeat):
             # the caches are heads-major (B', N, W, K): the cache and the new frames are two key blocks of one
@@ -212,7 +211,8 @@ class ActionModule(nnx.Module):
             blocks = [(cache.k, cache.v, kept), (k_h, v_h, causal)]
             if repeat > 1:
                 blocks = [(jnp.repeat(k, repeat, axis=0), jnp.repeat(v, repeat, axis=0), m) for k, v, m in blocks]
-            return attention_heads_major(q, blocks), kv_cache.update(cache, k_h[:, :, :keep], v_h[:, :, :keep])
+            new_cache = kv_cache.update(cache, k_h[:, :, :commit], v_h[:, :, :commit]) if commit else cache
+            return attention_heads_major(q, blocks), new_cache
 
         q, k, v = self._mouse_qkv(x_BFLD, mouse_BFWA, angles_FJ)
         attn, cache_mouse = attend(q, k, v, cache_mouse, 1)

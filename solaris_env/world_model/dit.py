@@ -20,8 +20,9 @@ The ``concat`` variant (docs/model.md §3.7) is the same network with one stream
 channels; ``to_stream`` / ``from_stream`` convert (B, num_players, ...) tensors.
 
 Modes are entry points: ``forward_bidirectional``, ``forward_causal``, ``forward_teacher_forcing`` and
-``decode_step``. The first three run the whole sequence with a frame-level mask; the last attends to
-a rolling cache (``kv_cache``).
+``decode``. The first three run the whole sequence with a frame-level mask; ``decode`` runs new frames
+against a rolling cache (``kv_cache``), with the context given as its per-layer cross-attention keys/values
+(``context_kv``).
 """
 
 from __future__ import annotations
@@ -104,41 +105,24 @@ def _fold(a_BP_: jax.Array) -> jax.Array:
 # differentiate or jit a pure function of part of its state (e.g. jax.grad w.r.t. inputs only).
 
 
-def _run_if(pred: jax.Array, module: nnx.Module, run, skip, *operands, select=None):
-    """``run(module, *operands)`` if ``pred`` else ``skip(*operands)``; one branch executes. ``select``
-    maps the module's state inside the taken branch (e.g. picks one layer of stacked parameters, so the
-    skipped branch never reads them)."""
-    if isinstance(pred, (bool, np.bool_)):  # static (a per-layer module list): no lax.cond at all
-        return run(module, *operands) if pred else skip(*operands)
+def _run_if(pred: jax.Array, module: nnx.Module, run, skip, *operands):
+    """``run(module, *operands)`` if ``pred`` (traced) else ``skip(*operands)``; one branch executes."""
     graphdef, state = nnx.split(module)
-    pick = (lambda st: st) if select is None else select
-    return jax.lax.cond(pred, lambda st, *ops: run(nnx.merge(graphdef, pick(st)), *ops),
+    return jax.lax.cond(pred, lambda st, *ops: run(nnx.merge(graphdef, st), *ops),
                         lambda st, *ops: skip(*ops), state, *operands)
 
 
-def _static_layer(tree, layer: int):
-    """Layer ``layer`` (a Python int) of a pytree of stacked arrays."""
-    return jax.tree.map(lambda a: a[layer], tree)
-
-
-def _layer_of(layer: jax.Array):
-    """State of stacked layers -> the state of layer ``layer`` (traced index)."""
-    return lambda state: jax.tree.map(lambda a: jax.lax.dynamic_index_in_dim(a, layer, 0, keepdims=False), state)
-
-
-def _scan_layers(blocks: nnx.Module, step, carry, per_layer, remat: bool = False, unroll: bool = False):
+def _scan_layers(blocks: nnx.Module, step, carry, per_layer, remat: bool = False):
     """Scan ``step(block, carry, layer_inputs) -> (carry, layer_outputs)`` over the stacked layer axis.
     ``remat``: under differentiation keep only each layer's input and recompute the layer in the backward
-    pass (``jax.checkpoint``); no effect on forward-only calls. ``unroll``: straight-line code instead of
-    a loop (same result; for XLA's cost analysis, which counts a loop body once)."""
+    pass (``jax.checkpoint``); no effect on forward-only calls."""
     graphdef, state = nnx.split(blocks)
 
     def body(c, xs):
         layer_state, layer_inputs = xs
         return step(nnx.merge(graphdef, layer_state), c, layer_inputs)
 
-    return jax.lax.scan(jax.checkpoint(body, prevent_cse=False) if remat else body, carry, (state, per_layer),
-                        unroll=unroll)
+    return jax.lax.scan(jax.checkpoint(body, prevent_cse=False) if remat else body, carry, (state, per_layer))
 
 
 def _teacher_forcing_band(num_frames: int, window: int) -> tuple[np.ndarray, np.ndarray]:
@@ -194,25 +178,14 @@ class _Conditioning(NamedTuple):
 
 
 class ContextKV(NamedTuple):
-    """Cross-attention keys/values of the image context for every layer (``WorldDiT.context_kv``).
+    """Cross-attention keys/values of the image context, one entry per layer (``WorldDiT.context_kv``).
 
     They depend only on the context (the first frames), so a stream computes them once per world
-    instead of re-projecting the context in every DiT pass.
+    instead of re-projecting the context in every DiT pass; each layer's are their own buffers, read in
+    place by that layer.
     """
-    k_LBPNMK: jax.Array  # (layers, B, P, N, M, K): normed keys, heads-major (read by the dots as they are)
-    v_LBPNMK: jax.Array  # (layers, B, P, N, M, K)
-    # or, for the per-layer streaming path (``layers=``), each field a tuple of per-layer (B, P, N, M, K)
-    # arrays (``unstack``): a pass then reads each layer's K/V in place instead of slicing a stacked array
-
-    def unstack(self) -> "ContextKV":
-        """The stacked form -> the per-layer form (each layer its own buffers)."""
-        return ContextKV(*(tuple(a[i] for i in range(a.shape[0])) for a in self))
-
-    @property
-    def shape(self) -> tuple[int, ...]:
-        """The stacked (layers, B, P, N, M, K) shape of the keys, for either form."""
-        k = self.k_LBPNMK
-        return (len(k),) + k[0].shape if isinstance(k, tuple) else k.shape
+    k_BPNMK: tuple[jax.Array, ...]  # per layer (B, P, N, M, K): normed keys, heads-major (read by the dots as they are)
+    v_BPNMK: tuple[jax.Array, ...]  # per layer (B, P, N, M, K)
 
 
 class _SequencePlan(NamedTuple):
@@ -270,15 +243,14 @@ class SelfAttention(_QKVProjection):
         k, v = stop_gradient_where(k, kv_stop_L), stop_gradient_where(v, kv_stop_L)
         return self._out(attention(q, k, v, mask_LL, self.impl) if attend is None else attend(q, k, v))
 
-    def decode(self, x_BLD: jax.Array, angles_LJ: jax.Array, cache: kv_cache.KVCache, num_frames: int = 1,
-               keep: int | None = None):
+    def decode(self, x_BLD: jax.Array, angles_LJ: jax.Array, cache: kv_cache.KVCache, num_frames: int, commit: int):
         """Attend from ``num_frames`` new frames (tokens packed frame-major) to the heads-major ``cache``
         and to themselves, block-causally: frame f sees the cache slots still valid after f + 1 frames
         are appended, and new frames <= f. Returns (y, the cache with the (post-RoPE) keys of the first
-        ``keep`` new frames appended; default all).
+        ``commit`` new frames appended; ``cache`` itself for ``commit`` = 0).
 
         The attention reads the old cache and the new keys as two blocks (``attention_heads_major``),
-        so a pass whose updated cache is discarded never builds it."""
+        so a pass that commits nothing never builds an updated cache."""
         q, k, v = self._qkv(x_BLD, angles_LJ)
         k_BNLK, v_BNLK = k.transpose(0, 2, 1, 3), v.transpose(0, 2, 1, 3)
         per_frame = k_BNLK.shape[2] // num_frames
@@ -288,9 +260,10 @@ class SelfAttention(_QKVProjection):
         causal = None if num_frames == 1 else masks.expand_to_tokens(np.tril(np.ones((num_frames,) * 2, bool)),
                                                                      per_frame)
         y = attention_heads_major(q, [(cache.k, cache.v, kept), (k_BNLK, v_BNLK, causal)])
-        keep = num_frames if keep is None else keep
-        new = slice(0, keep * per_frame)
-        return self._out(y), kv_cache.update(cache, k_BNLK[:, :, new], v_BNLK[:, :, new])
+        if commit:
+            new = slice(0, commit * per_frame)
+            cache = kv_cache.update(cache, k_BNLK[:, :, new], v_BNLK[:, :, new])
+        return self._out(y), cache
 
 
 class CrossAttention(_QKVProjection):
@@ -381,35 +354,27 @@ class DiTBlock(nnx.Module):
         return self._ffn_residual(x_BPFLD, mods)
 
     def decode(self, x_BPFLD: jax.Array, cond: _Conditioning, angles_LJ: jax.Array, action_angles_FJ: jax.Array,
-               layer: jax.Array, cache: kv_cache.DiTCache, cross_kv: tuple[jax.Array, jax.Array],
-               stacked_actions: bool = False, keep: int | None = None):
-        """F new latent frames against this layer's caches -> (x_BPFLD, updated caches).
+               layer: int, cache: kv_cache.LayerCache, cross_kv: tuple[jax.Array, jax.Array], commit: int):
+        """F new latent frames against this layer's caches -> (x_BPFLD, the caches with the first ``commit``
+        new frames written; ``cache`` itself for ``commit`` = 0).
 
         The new frames are block-causal: frame f sees the cache slots still valid after f + 1 frames
-        are appended, and new frames <= f (F = 1: one frame against cache + itself); the caches get the
-        first ``keep`` new frames (default all). ``cross_kv`` = this layer's context keys/values,
-        heads-major, each (B*P, N, M, K). ``stacked_actions``: this block's ``action_model`` holds every
-        layer's parameters (leading layer axis) and the branch that runs it picks layer ``layer`` (so
-        layers without an action module never copy those weights)."""
+        are appended, and new frames <= f (F = 1: one frame against cache + itself). ``layer`` (a Python
+        int) decides whether the action module runs; ``cross_kv`` = this layer's context keys/values,
+        heads-major, each (B*P, N, M, K)."""
         mods = self._modulation(cond.e0_BPF6D)
         x_BPFLD = x_BPFLD + cond.player_PD[None, :, None, None].astype(x_BPFLD.dtype)
         b, p, f, s, d = x_BPFLD.shape
-        y, self_cache = self.self_attn.decode(self._attn_input(x_BPFLD, mods), angles_LJ, cache.self_attn, f, keep)
+        y, self_cache = self.self_attn.decode(self._attn_input(x_BPFLD, mods), angles_LJ, cache.self_attn, f, commit)
         x_BPFLD = self._cross_and_actions_input(x_BPFLD, y, mods,
                                                 lambda h: self.cross_attn.attend_heads_major(h, *cross_kv))
-
-        def run_actions(module, x, mouse_cache, keyboard_cache):
-            x, mouse_cache, keyboard_cache = module.decode(
-                x.reshape(b * p, f, s, d), _fold(cond.mouse_BPFWA), _fold(cond.keyboard_BPFWA),
-                action_angles_FJ, mouse_cache, keyboard_cache, keep)
-            return x.reshape(b, p, f, s, d), mouse_cache, keyboard_cache
-
-        x_BPFLD, mouse_cache, keyboard_cache = _run_if(
-            layer < self.num_action_blocks, self.action_model, run_actions, lambda x, mc, kc: (x, mc, kc),
-            x_BPFLD, cache.mouse, cache.keyboard,
-            select=_layer_of(layer) if stacked_actions else None)
-        # the camera-warp latent passes through: the caller writes the new one
-        new_cache = cache.replace(self_attn=self_cache, mouse=mouse_cache, keyboard=keyboard_cache)
+        mouse_cache, keyboard_cache = cache.mouse, cache.keyboard
+        if layer < self.num_action_blocks:
+            x, mouse_cache, keyboard_cache = self.action_model.decode(
+                x_BPFLD.reshape(b * p, f, s, d), _fold(cond.mouse_BPFWA), _fold(cond.keyboard_BPFWA),
+                action_angles_FJ, mouse_cache, keyboard_cache, commit)
+            x_BPFLD = x.reshape(b, p, f, s, d)
+        new_cache = kv_cache.LayerCache(self_attn=self_cache, mouse=mouse_cache, keyboard=keyboard_cache)
         return self._ffn_residual(x_BPFLD, mods), new_cache
 
 
@@ -536,183 +501,97 @@ class WorldDiT(nnx.Module):
             remat=remat, prev=twice(_previous_frames(clean)))
         return v[:, :, num_frames:]
 
-    def decode_step(self, x, t, cond, context, mouse, keyboard, cache: kv_cache.DiTCache,
-                    start_frame: int | jax.Array):
-        """One latent frame at absolute position ``start_frame`` against the rolling cache.
+    def decode(self, x, t, cond, context_kv: ContextKV, mouse, keyboard, cache: kv_cache.DiTCache,
+               start_frame: int | jax.Array, *, commit: int = 0,
+               layers: "tuple[DiTBlock, ...] | None" = None) -> tuple[jax.Array, kv_cache.DiTCache]:
+        """F new latent frames at absolute positions ``start_frame``.. against the rolling ``cache``: every
+        pass of a causal rollout (docs/model.md §3.6, §5.2, §5.5).
 
-        Shapes as the class docstring with F = 1; ``mouse``/``keyboard`` are this frame's windows
-        (B, P, action_window, A) (``action_module.window_at``). Returns ``(v, new_cache)``: the cache
-        now holds this frame's keys/values — keep it for the commit pass (clean latent, t = 0),
-        discard it for denoising passes. Every layer projects the context here; a stream that runs many
-        passes against the same context uses ``decode_step_cached`` with ``context_kv(context)``.
+        Shapes as the class docstring, the context given as its per-layer keys/values (``context_kv``);
+        ``mouse``/``keyboard`` are the (B, P, k * (F - 1) + action_window, A) action sequence of the F
+        frames, frame f's window being [k f, k f + action_window) (F = 1: the frame's window,
+        ``action_module.window_at``). The new frames are block-causal: frame f sees the cache slots still
+        valid after f + 1 frames are appended, and the new frames <= f.
+
+        ``commit`` (a Python int, 0..F): how many of the new frames, from the first, are written to the
+        cache. Returns ``(v of the F frames, the cache)``:
+
+        - ``commit=0``: a denoising pass; the cache comes back as it was (the updated one is never built);
+        - one clean frame at t = 0 with ``commit=1``: the reference's commit pass;
+        - [clean frame i - 1 at t = 0 ; noisy frame i] with ``commit=1``: that commit and frame i's first
+          denoising pass as one pass (the streaming model). Frame 0 never sees frame 1, so its keys/values
+          are the separate commit pass's, and frame 1 sees the cache with frame 0 appended: the two passes
+          up to float rounding, with one pass's fixed costs.
+
+        ``layers``: the blocks as one module per layer; default ``layer_blocks()`` (this DiT's weights);
+        the streaming model passes its per-layer parameters (``unstack_blocks``). The layers run as a
+        Python loop with static indices: every layer reads its weights, cache and context K/V in place,
+        and the action module runs in the first ``num_action_blocks`` layers without a ``lax.cond``.
         """
-        self._validate(x, t, cond, context, mouse, keyboard, expect_frames=1)
-        cond_in, tokens, e = self._prepare(x, t, cond, context, mouse[:, :, None], keyboard[:, :, None],
-                                           self._cached_previous(x, cache))
-        def project(block, _):
-            k, v = block.cross_attn.kv(_fold(cond_in.context_BPMD))
-            return k.transpose(0, 2, 1, 3), v.transpose(0, 2, 1, 3)
+        c, d = self.cfg, self.cfg.dit
+        layers = self.layer_blocks() if layers is None else layers
+        num_frames = x.shape[2]
+        if not 0 <= commit <= num_frames:
+            raise ValueError(f"commit={commit} must be in [0, {num_frames}] (the number of new frames)")
+        for name, n in (("layers", len(layers)), ("cache", len(cache.layers))):
+            if n != d.num_layers:
+                raise ValueError(f"{name} has {n} layers; the config has num_layers={d.num_layers}")
+        cond_in, tokens, e = self._prepare_cached(x, t, cond, context_kv, mouse, keyboard, cache)
+        gh, gw = self._grid()
+        angles = rope.rope_3d_angles(d.rope_split, d.rope_theta, num_frames, gh, gw, tokens.shape[1], start_frame)
+        action_angles = rope.temporal_rope_angles(c.action.rope_dims, c.action.rope_theta, num_frames, start_frame)
+        new_layers = []
+        for i, (block, layer_cache, k, v) in enumerate(zip(layers, cache.layers, context_kv.k_BPNMK,
+                                                           context_kv.v_BPNMK)):
+            tokens, layer_cache = block.decode(tokens, cond_in, angles, action_angles, i, layer_cache,
+                                               (_fold(k), _fold(v)), commit)
+            new_layers.append(layer_cache)
+        v = self._unpatchify(self.head(tokens, e))
+        if not commit:
+            return v, cache
+        # the camera warp's latent: the newest committed frame's
+        latent = None if cache.latent is None else x[:, :, commit - 1].astype(cache.latent.dtype)
+        return v, kv_cache.DiTCache(layers=tuple(new_layers), latent=latent)
 
-        return self._decode_layers(tokens, e, cond_in, cache, start_frame, project, None, keep_cache=True,
-                                   unroll=False, x_in=x)
+    def layer_blocks(self) -> "tuple[DiTBlock, ...]":
+        """The stacked blocks as one module per layer (``unstack_blocks``: each layer's weights sliced out
+        once; under differentiation their gradients are stacked back in one piece)."""
+        graphdef, state = nnx.split(self.blocks)
+        return tuple(nnx.merge(graphdef, s) for s in unstack_blocks(self.cfg, state))
 
     def context_kv(self, context, layers: "tuple[DiTBlock, ...] | None" = None) -> ContextKV:
-        """The cross-attention keys/values of every layer for ``context`` (B, P, M, context_width): what
-        ``decode_step`` computes in every pass, computed once (``img_emb`` then each layer's k/v).
-        ``layers``: the blocks as one module per layer (``unstack_blocks``) instead of ``self.blocks``."""
+        """The cross-attention keys/values of every layer for ``context`` (B, P, M, context_width), computed
+        once (``img_emb`` then each layer's k/v): what ``decode`` reads instead of the context.
+        ``layers`` as ``decode``."""
         c = self.cfg
         if context.ndim != 4 or context.shape[1] != c.stream_players or context.shape[3] != c.context_width:
             raise ValueError(f"context has shape {context.shape}; expected (B, {c.stream_players}, M, "
                              f"{c.context_width})")
         b, p = context.shape[:2]
         projected = _fold(self.img_emb(context.astype(jnp.dtype(c.dit.dtype))))  # (B*P, M, D)
-
-        def step(block, carry, _):
-            heads_major = lambda a: a.transpose(0, 2, 1, 3).reshape((b, p) + a.shape[2:3] + a.shape[1:2] + a.shape[3:])
-            k, v = block.cross_attn.kv(projected)  # (B*P, M, N, K)
-            return carry, (heads_major(k), heads_major(v))
-
-        if layers is not None:
-            k, v = zip(*(step(block, None, None)[1] for block in layers))
-            return ContextKV(jnp.stack(k), jnp.stack(v))
-        _, (k, v) = _scan_layers(self.blocks, step, None, jnp.arange(c.dit.num_layers))
-        return ContextKV(k, v)
-
-    def decode_step_cached(self, x, t, cond, context_kv: ContextKV, mouse, keyboard, cache: kv_cache.DiTCache,
-                           start_frame: int | jax.Array, *, unroll: bool = False,
-                           layers: "tuple[DiTBlock, ...] | None" = None):
-        """``decode_step`` with the context given as its precomputed per-layer keys/values
-        (``context_kv(context)``): the same result up to float rounding, without re-projecting the
-        context in every pass. Returns ``(v, new_cache)`` (a commit pass keeps the cache). ``unroll``
-        traces the layers as straight-line code (same result; for XLA's cost analysis).
-
-        ``layers``: the blocks as one module per layer (``unstack_blocks``; ``self.blocks`` is then not
-        read). The layer loop is then Python-level with static layer indices: every layer's weights are
-        their own buffers (a scan over the stacked weights copies each layer's slice, ~its whole size,
-        in every pass) and the action module runs in the first ``num_action_blocks`` layers without a
-        ``lax.cond``. Same result up to float rounding; what the streaming ``WorldModel`` uses."""
-        cond_in, tokens, e = self._prepare_cached(x, t, cond, context_kv, mouse, keyboard, cache=cache)
-        return self._decode_layers(tokens, e, cond_in, cache, start_frame, self._fold_kv,
-                                   (context_kv.k_LBPNMK, context_kv.v_LBPNMK), keep_cache=True, unroll=unroll,
-                                   layers=layers, x_in=x)
-
-    def denoise_step_cached(self, x, t, cond, context_kv: ContextKV, mouse, keyboard, cache: kv_cache.DiTCache,
-                            start_frame: int | jax.Array, *, unroll: bool = False,
-                            layers: "tuple[DiTBlock, ...] | None" = None) -> jax.Array:
-        """The velocity of ``decode_step_cached`` alone (a denoising pass: the cache update is discarded,
-        so it is never built)."""
-        cond_in, tokens, e = self._prepare_cached(x, t, cond, context_kv, mouse, keyboard, cache=cache)
-        return self._decode_layers(tokens, e, cond_in, cache, start_frame, self._fold_kv,
-                                   (context_kv.k_LBPNMK, context_kv.v_LBPNMK), keep_cache=False, unroll=unroll,
-                                   layers=layers)[0]
-
-    def commit_denoise_step_cached(self, x, t, cond, context_kv: ContextKV, mouse, keyboard,
-                                   cache: kv_cache.DiTCache, start_frame: int | jax.Array, *, unroll: bool = False,
-                                   layers: "tuple[DiTBlock, ...] | None" = None):
-        """The commit pass of one frame and the first denoising pass of the next, as ONE pass of two frames.
-
-        ``x`` (B, P, 2, h, w, C) = [the previous frame's clean latent ; the next frame's noisy input] at
-        positions ``start_frame`` and ``start_frame + 1``, ``t`` (B, P, 2) their timesteps (0 for the
-        commit), ``cond`` (B, P, 2, h, w, Cc), ``mouse``/``keyboard`` the action sequence (B, P,
-        k + action_window, A) whose windows are frame 0's ([0, window)) and frame 1's ([k, k + window)).
-        Block-causal: frame 0 never sees frame 1, so its keys/values are exactly the separate commit
-        pass's (``decode_step_cached`` at t = 0), and frame 1 sees the cache with frame 0 appended, as a
-        denoising pass after that commit. Returns ``(v (B, P, 1, h, w, C) of frame 1, the cache with
-        frame 0 written)``: equal to the two passes up to float rounding, with one pass's fixed costs.
-        """
-        cond_in, tokens, e = self._prepare_cached(x, t, cond, context_kv, mouse, keyboard, num_frames=2, cache=cache)
-        v, new_cache = self._decode_layers(tokens, e, cond_in, cache, start_frame, self._fold_kv,
-                                           (context_kv.k_LBPNMK, context_kv.v_LBPNMK), keep_cache=True,
-                                           unroll=unroll, layers=layers, keep=1, x_in=x)
-        return v[:, :, 1:], new_cache
+        heads_major = lambda a: a.transpose(0, 2, 1, 3).reshape((b, p) + a.shape[2:3] + a.shape[1:2] + a.shape[3:])
+        kv = [block.cross_attn.kv(projected) for block in (self.layer_blocks() if layers is None else layers)]
+        return ContextKV(tuple(heads_major(k) for k, _ in kv), tuple(heads_major(v) for _, v in kv))
 
     # -- internals -----------------------------------------------------------------------------------
-    @staticmethod
-    def _fold_kv(block, kv):
-        return _fold(kv[0]), _fold(kv[1])
-
-    def _prepare_cached(self, x, t, cond, context_kv: ContextKV, mouse, keyboard, num_frames: int = 1, cache=None):
-        """Shape checks and ``_prepare`` for the ``*_cached`` entry points (no context projection);
-        ``mouse``/``keyboard`` are the (B, P, k * (F - 1) + action_window, A) action sequence of the F
-        frames (for F = 1: the frame's window)."""
+    def _prepare_cached(self, x, t, cond, context_kv: ContextKV, mouse, keyboard, cache: kv_cache.DiTCache):
+        """Shape checks and ``_prepare`` for ``decode`` (no context projection)."""
         c = self.cfg
-        b, p = x.shape[:2]
-        want = (c.dit.num_layers, b, p, c.dit.num_heads, None, c.dit.head_dim)
-        for name, a in (("context_kv.k", context_kv.k_LBPNMK), ("context_kv.v", context_kv.v_LBPNMK)):
-            shapes = {(len(a),) + x.shape for x in a} if isinstance(a, tuple) else {a.shape}
-            shape = shapes.pop()
-            if shapes or len(shape) != 6 or any(w is not None and g != w for g, w in zip(shape, want)):
-                raise ValueError(f"{name} has shape {shape}; expected (layers, B, P, N, M, K) = "
+        b, p, num_frames = x.shape[:3]
+        want = (b, p, c.dit.num_heads, None, c.dit.head_dim)
+        for name, arrays in (("context_kv.k", context_kv.k_BPNMK), ("context_kv.v", context_kv.v_BPNMK)):
+            shapes = {a.shape for a in arrays}
+            shape = next(iter(shapes)) if len(shapes) == 1 else None
+            if (len(arrays) != c.dit.num_layers or shape is None or len(shape) != 5
+                    or any(w is not None and g != w for g, w in zip(shape, want))):
+                raise ValueError(f"{name} has {len(arrays)} layers of shapes {sorted(shapes)}; expected "
+                                 f"num_layers={c.dit.num_layers} of (B, P, N, M, K) = "
                                  f"{tuple('M' if w is None else w for w in want)}")
-        context_shape = jax.ShapeDtypeStruct((b, p, context_kv.shape[4], c.context_width), jnp.float32)
-        self._validate(x, t, cond, context_shape, mouse, keyboard, expect_frames=num_frames)
+        context_shape = jax.ShapeDtypeStruct((b, p, context_kv.k_BPNMK[0].shape[3], c.context_width), jnp.float32)
+        self._validate(x, t, cond, context_shape, mouse, keyboard)
         k, w = c.frames_per_step, c.action_window
         windows = lambda a: jnp.stack([a[:, :, k * f:k * f + w] for f in range(num_frames)], axis=2)
         return self._prepare(x, t, cond, None, windows(mouse), windows(keyboard), self._cached_previous(x, cache))
-
-    def _decode_layers(self, tokens, e, cond_in: _Conditioning, cache: kv_cache.DiTCache, start_frame,
-                       cross_kv_of, per_layer_kv, keep_cache: bool, unroll: bool, layers=None,
-                       keep: int | None = None, x_in=None):
-        """The layer scan of a decode step; ``cross_kv_of(block, per_layer_kv[layer])`` gives the layer's
-        heads-major cross-attention (k, v), each (B*P, N, M, K). Without ``keep_cache`` the updated
-        caches are not outputs of the scan (so XLA never builds them) and None is returned for them."""
-        c, d = self.cfg, self.cfg.dit
-        gh, gw = self._grid()
-        num_frames = tokens.shape[2]  # tokens (B, P, F, L, D); > 1: block-causal, the first ``keep`` cached
-        angles = rope.rope_3d_angles(d.rope_split, d.rope_theta, num_frames, gh, gw, tokens.shape[1], start_frame)
-        action_angles = rope.temporal_rope_angles(c.action.rope_dims, c.action.rope_theta, num_frames, start_frame)
-        if layers is not None:  # one module per layer, static indices (see decode_step_cached)
-            if len(layers) != d.num_layers:
-                raise ValueError(f"layers has {len(layers)} blocks; the config has num_layers={d.num_layers}")
-            # a tuple of per-layer caches (``kv_cache.unstack``) is read and returned layer by layer: no
-            # strided per-layer slice of a stacked cache in every pass, no stacking copy after a commit
-            per_layer = isinstance(cache, tuple)
-            if per_layer and len(cache) != d.num_layers:
-                raise ValueError(f"cache has {len(cache)} layers; the config has num_layers={d.num_layers}")
-            new_caches = []
-            for i, block in enumerate(layers):
-                layer_cache = cache[i] if per_layer else _static_layer(cache, i)
-                layer_kv = tuple(a[i] for a in per_layer_kv)  # stacked arrays or per-layer tuples
-                tokens, new_cache = block.decode(tokens, cond_in, angles, action_angles, i, layer_cache,
-                                                 cross_kv_of(block, layer_kv), keep=keep)
-                new_caches.append(new_cache)
-            if not keep_cache:
-                new_caches = None
-            elif not per_layer:
-                new_caches = self._with_latent(kv_cache.stack(tuple(new_caches)), x_in, keep)
-            else:
-                new_caches = tuple(self._with_latent(n, x_in, keep) for n in new_caches)
-            return self._unpatchify(self.head(tokens, e)), new_caches
-
-        # Per-layer caches and context K/V are read with a dynamic index (and the caches written back
-        # in place) instead of being scanned as xs/ys: under a vmap over worlds, scanned xs/ys would be
-        # transposed to layer-major as a whole on every call. The action modules' weights are not
-        # scanned either: only the layers that run one index them (``stacked_actions``).
-        at = lambda tree, i: _layer_of(i)(tree)
-        graphdef, action_state, rest_state = nnx.split(self.blocks, nnx.PathContains("action_model"), ...)
-
-        def body(carry, xs):
-            (h, caches), (layer_state, layer) = carry, xs
-            block = nnx.merge(graphdef, action_state, layer_state)
-            h, new_cache = block.decode(h, cond_in, angles, action_angles, layer, at(cache, layer),
-                                        cross_kv_of(block, at(per_layer_kv, layer)), stacked_actions=True, keep=keep)
-            if keep_cache:
-                caches = jax.tree.map(lambda a, n: jax.lax.dynamic_update_index_in_dim(a, n.astype(a.dtype), layer, 0),
-                                      caches, new_cache)
-            return (h, caches), None
-
-        (tokens, new_caches), _ = jax.lax.scan(body, (tokens, cache if keep_cache else None),
-                                               (rest_state, jnp.arange(d.num_layers)), unroll=unroll)
-        if keep_cache:
-            new_caches = self._with_latent(new_caches, x_in, keep)
-        return self._unpatchify(self.head(tokens, e)), new_caches
-
-    def _with_latent(self, cache: kv_cache.DiTCache, x_in, keep: int | None) -> kv_cache.DiTCache:
-        """The cache with (camera warp) the latent of its newest kept frame (``keep`` new frames, default all)."""
-        if self.cfg.dit.camera_warp_enabled:
-            last = x_in[:, :, (x_in.shape[2] if keep is None else keep) - 1]
-            cache = cache.replace(latent=jnp.broadcast_to(last, cache.latent.shape).astype(cache.latent.dtype))
-        return cache
 
     def _warped(self, prev_BPFhwC, mouse_BPFWA) -> jax.Array:
         """Each frame's previous latent, its content moved by the frame's camera turn (``camera_warp``)."""
@@ -723,15 +602,13 @@ class WorldDiT(nnx.Module):
         flat = prev_BPFhwC.reshape((-1,) + prev_BPFhwC.shape[3:]).astype(jnp.float32)
         return camera_lib.shift_latents(flat, shift.reshape(-1, 2)).reshape(prev_BPFhwC.shape)
 
-    def _cached_previous(self, x, cache):
+    def _cached_previous(self, x, cache: kv_cache.DiTCache):
         """Previous latents of the F new frames of a cached pass: the cache's last frame, then x's own."""
         if not self.cfg.dit.camera_warp_enabled:
             return None
-        latent = None if cache is None else (cache[0] if isinstance(cache, tuple) else cache).latent
-        if latent is None:
+        if cache.latent is None:
             raise ValueError("camera_warp is on but the cache has no latent (kv_cache.init_cache)")
-        latent = latent if isinstance(cache, tuple) else latent[0]
-        return jnp.concatenate([latent[:, :, None].astype(x.dtype), x[:, :, :-1]], axis=2)
+        return jnp.concatenate([cache.latent[:, :, None].astype(x.dtype), x[:, :, :-1]], axis=2)
 
     def _grid(self) -> tuple[int, int]:
         _, ph, pw = self.cfg.dit.patch_size
@@ -740,7 +617,7 @@ class WorldDiT(nnx.Module):
     def _windows(self, actions_BPTA: jax.Array, num_frames: int) -> jax.Array:
         return action_windows(actions_BPTA, self.cfg, num_frames)
 
-    def _validate(self, x, t, cond, context, mouse, keyboard, expect_frames: int | None = None) -> int:
+    def _validate(self, x, t, cond, context, mouse, keyboard) -> int:
         """Raise ValueError on any shape mismatch; return F."""
         c = self.cfg
         if x.ndim != 6 or x.shape[1] != c.stream_players or x.shape[3:] != (c.latent_height, c.latent_width,
@@ -748,8 +625,6 @@ class WorldDiT(nnx.Module):
             raise ValueError(f"x has shape {x.shape}; expected (B, {c.stream_players}, F, {c.latent_height}, "
                              f"{c.latent_width}, {c.out_channels})")
         b, p, f = x.shape[:3]
-        if expect_frames is not None and f != expect_frames:
-            raise ValueError(f"x has {f} frames; this entry point takes {expect_frames}")
         t_pad = padded_action_length(c, f)
         expected = {
             "t": (t.shape, (b, p, f)),
@@ -835,8 +710,13 @@ def block_graphdef(cfg: WorldModelConfig):
 
 def unstack_blocks(cfg: WorldModelConfig, blocks_state) -> tuple:
     """The stacked blocks' state (leaves (num_layers, ...), ``nnx.state(dit.blocks)``) as one state per
-    layer, each its own buffers; ``nnx.merge(block_graphdef(cfg), states[i])`` is layer i."""
-    return tuple(jax.tree.map(lambda a: a[i], blocks_state) for i in range(cfg.dit.num_layers))
+    layer, each its own buffers; ``nnx.merge(block_graphdef(cfg), states[i])`` is layer i. Differentiable:
+    the gradients of the layers' states come back stacked in one piece (``jnp.unstack``'s transpose)."""
+    leaves, treedef = jax.tree.flatten(blocks_state)
+    per_leaf = [jnp.unstack(a) for a in leaves]
+    if any(len(a) != cfg.dit.num_layers for a in per_leaf):
+        raise ValueError(f"the blocks' state is not stacked on num_layers={cfg.dit.num_layers} layers")
+    return tuple(jax.tree.unflatten(treedef, [a[i] for a in per_leaf]) for i in range(cfg.dit.num_layers))
 
 
 def stack_blocks(layer_states: tuple):

@@ -1,10 +1,9 @@
 """Rolling key/value caches for the cached decode step (docs/model.md §5.2).
 
 A cache is plain data (``flax.struct.dataclass``); functions return new caches, nothing mutates.
-``KVCache`` holds ``k``/``v`` of shape ``(..., B, S, N, K)`` (``layout="BSNK"``, S = cache slots) or
-``(..., B, N, S, K)`` (``layout="BNSK"``, heads-major: what an attention dot reads without a transpose)
-and ``length`` of shape ``(...)``. The leading ``...`` is the layer axis of the DiT's stacked caches;
-inside a block the leading axis is gone and the same functions apply.
+``KVCache`` holds ``k``/``v`` of shape ``(B, S, N, K)`` (``layout="BSNK"``, S = cache slots) or
+``(B, N, S, K)`` (``layout="BNSK"``, heads-major: what an attention dot reads without a transpose)
+and a scalar ``length``; the functions also accept leading axes (``(..., B, S, N, K)``, ``length`` (...)).
 
 Rolling FIFO: ``update`` appends the new entries at the end and keeps the last S, so the newest entry
 is always in the last slot; ``length`` counts the valid (filled) slots, which are the *last* ``length``
@@ -12,19 +11,21 @@ slots: ``valid_mask = arange(S) >= S - length``. With S = W frames, a step that 
 and attends to the result sees frames ``[max(0, i - W + 1), i]``, the same frames as the training
 causal window mask (``masks.causal_window_frame_mask``).
 
-Three caches per DiT (``DiTCache``), each with one entry per layer:
+The DiT's cache (``DiTCache``, what ``WorldDiT.decode`` reads and writes) is one ``LayerCache`` per layer,
+each its own buffers (a layer's attention reads its cache in place; no per-layer slice of a stacked
+array, no stacking copy after a commit), with three caches per layer:
 
 | cache | k / v shape | slots |
 |---|---|---|
-| self_attn | (layers, B, N, cache_tokens, K), heads-major | window * stream players * tokens per frame (post-RoPE k) |
-| mouse | (layers, B * P * tokens, Na, window, Ka), heads-major | one per frame, per spatial location |
-| keyboard | (layers, B * P, Na, window, Ka), heads-major | one per frame |
+| self_attn | (B, N, cache_tokens, K), heads-major | window * stream players * tokens per frame (post-RoPE k) |
+| mouse | (B * P * tokens, Na, window, Ka), heads-major | one per frame, per spatial location |
+| keyboard | (B * P, Na, window, Ka), heads-major | one per frame |
 
 With the camera warp (``DiTConfig.camera_warp``) the cache also carries ``latent``, the last cached frame's
 latent, which the next frame sees shifted.
 
-Mouse/keyboard caches exist for every layer (uniform scan) but only the first ``num_action_blocks``
-layers touch them; the others stay empty.
+Mouse/keyboard caches exist for every layer but only the first ``num_action_blocks`` layers touch them;
+the others stay empty.
 
 ``kept_mask`` tells which current slots stay valid after an update with n entries, so a pass that only
 *reads* "cache + new entries" (the denoising passes) can attend to the old cache and the new entries
@@ -60,11 +61,17 @@ class KVCache:
 
 
 @struct.dataclass
-class DiTCache:
+class LayerCache:
+    """One DiT layer's caches."""
     self_attn: KVCache
     mouse: KVCache
     keyboard: KVCache
-    # camera warp only (``DiTConfig.camera_warp``): (..., B, P, h, w, C) the last cached frame's latent (as the
+
+
+@struct.dataclass
+class DiTCache:
+    layers: tuple[LayerCache, ...]  # one per DiT layer
+    # camera warp only (``DiTConfig.camera_warp``): (B, P, h, w, C) the last cached frame's latent (as the
     # commit pass got it), the next frame's previous latent; None otherwise
     latent: jax.Array | None = None
 
@@ -84,31 +91,21 @@ def empty_cache(lead_shape: tuple[int, ...], batch: int, slots: int, heads: int,
 def init_cache(cfg: WorldModelConfig, batch: int, dtype=None) -> DiTCache:
     """Empty caches for every DiT layer; ``dtype`` defaults to the DiT compute dtype."""
     dtype = jnp.dtype(cfg.dit.dtype if dtype is None else dtype)
-    layers = (cfg.dit.num_layers,)
     players = cfg.stream_players
     a = cfg.action
-    return DiTCache(
-        self_attn=empty_cache(layers, batch, cfg.cache_tokens, cfg.dit.num_heads, cfg.dit.head_dim, dtype,
-                              layout="BNSK"),
-        mouse=empty_cache(layers, batch * players * cfg.tokens_per_frame, cfg.dit.window, a.num_heads,
-                          a.head_dim, dtype, layout="BNSK"),
-        keyboard=empty_cache(layers, batch * players, cfg.dit.window, a.num_heads, a.keyboard_head_dim, dtype,
-                             layout="BNSK"),
-        latent=jnp.zeros(layers + (batch, players, cfg.latent_height, cfg.latent_width, cfg.out_channels), jnp.float32)
-        if cfg.dit.camera_warp_enabled else None,
-    )
 
+    def layer() -> LayerCache:
+        return LayerCache(
+            self_attn=empty_cache((), batch, cfg.cache_tokens, cfg.dit.num_heads, cfg.dit.head_dim, dtype,
+                                  layout="BNSK"),
+            mouse=empty_cache((), batch * players * cfg.tokens_per_frame, cfg.dit.window, a.num_heads, a.head_dim,
+                              dtype, layout="BNSK"),
+            keyboard=empty_cache((), batch * players, cfg.dit.window, a.num_heads, a.keyboard_head_dim, dtype,
+                                 layout="BNSK"))
 
-def unstack(cache: DiTCache) -> tuple[DiTCache, ...]:
-    """Stacked caches (leaves (layers, ...)) -> one ``DiTCache`` per layer, each its own buffers (what the
-    streaming ``WorldModel`` carries: a layer's attention then reads its cache in place)."""
-    layers = cache.self_attn.length.shape[0]
-    return tuple(jax.tree.map(lambda a: a[i], cache) for i in range(layers))
-
-
-def stack(caches: tuple[DiTCache, ...]) -> DiTCache:
-    """Inverse of ``unstack``."""
-    return jax.tree.map(lambda *a: jnp.stack(a), *caches)
+    latent = (jnp.zeros((batch, players, cfg.latent_height, cfg.latent_width, cfg.out_channels), jnp.float32)
+              if cfg.dit.camera_warp_enabled else None)
+    return DiTCache(layers=tuple(layer() for _ in range(cfg.dit.num_layers)), latent=latent)
 
 
 def update(cache: KVCache, k_new: jax.Array, v_new: jax.Array) -> KVCache:

@@ -12,7 +12,7 @@ so after the last step (sigma_n = 0) ``z == x0`` exactly. This is the DMD / cons
 of the reference, NOT an Euler ODE solver (docs/model.md §5.3).
 
 A sampler takes a denoiser, never the reverse: ``denoise_fn(x_t, t) -> v`` is any callable (the DiT's
-``decode_step`` closed over its cache and conditioning, a fake predictor in tests, ...); ``t`` is a
+``decode`` closed over its cache and conditioning, a fake predictor in tests, ...); ``t`` is a
 scalar f32 array and ``v`` has the shape of ``x_t``. Nothing here imports the network.
 
 Noise keys: ``sample_frame(denoise_fn, z, key, timesteps)`` splits ``key`` into one key per step

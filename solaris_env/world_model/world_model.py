@@ -28,7 +28,7 @@ One step = few-step sampling of latent frame i (``sampler.sample_frame`` over ``
 timesteps, x0 prediction + fresh noise; the DiT's passes against the rolling KV cache, update
 discarded) and a streaming VAE decode of it (the decoder's causal cache lives in the state). The
 reference's commit pass (frame i at t = 0, writing the cache) is fused into the NEXT step's first
-pass: ``WorldDiT.commit_denoise_step_cached`` runs [clean frame i - 1 at t = 0 ; noisy frame i at
+pass: ``WorldDiT.decode(..., commit=1)`` runs [clean frame i - 1 at t = 0 ; noisy frame i at
 t = 1000] as two block-causal frames and writes only frame i - 1, so the state's cache holds every
 generated frame but the last (``latent_BP1hwC``, the pending one). Same numbers as the separate passes
 up to float rounding (``test_streaming_step_equals_offline_rollout``).
@@ -44,9 +44,9 @@ rounding error grows like position * 2^-24 rad (about 1e-3 rad after 10^4 latent
 
 Work per step. The context (image-encoder tokens of the first frames) is constant, so ``init`` stores
 its cross-attention keys/values for every DiT layer in the state (``context_kv``, ``WorldDiT.context_kv``)
-and the passes read them (``WorldDiT.denoise_step_cached`` / ``decode_step_cached``) instead of
-re-projecting the context 5 times per step. The denoising passes never build the updated KV cache
-(they attend to "kept cache slots + this frame" as two blocks); only the fused first pass writes it.
+and the passes read them (``WorldDiT.decode``) instead of re-projecting the context 5 times per step.
+The denoising passes (``commit=0``) never build the updated KV cache (they attend to "kept cache slots
++ this frame" as two blocks); only the fused first pass writes it.
 
 Per-world independence. Every world has its own PRNG key stream, RoPE start frame and KV-cache fill
 level: the DiT and the sampler run under ``jax.vmap`` over worlds (the DiT sees batch 1 per world), the
@@ -163,9 +163,9 @@ class WorldState:
     frame_index_B: jax.Array  # (B,) int32: index of the next latent frame = its RoPE start frame
     actions_BPWA: jax.Array  # (B, P, W, A) f32: the last W actions (the left-padded history)
     context_BPMC: jax.Array  # (B, P, M, Ce): image-encoder tokens of the first frames
-    context_kv: ContextKV  # their cross-attention K/V, one (B, 1, P, N, M, K) array per DiT layer (``ContextKV.unstack``)
+    context_kv: ContextKV  # their cross-attention K/V, one (B, 1, P, N, M, K) array per DiT layer
     cond_BPFhwC: jax.Array  # (B, P, Fc, h, w, Cc): conditioning of latent frames 0..Fc-1 (last = steady)
-    dit_cache: tuple  # per-layer rolling caches of the committed frames (all but the last): one DiTCache per layer, leaves (B, 1, ...)
+    dit_cache: kv_cache.DiTCache  # rolling caches of the committed frames (all but the last), leaves (B, 1, ...)
     vae_cache: Any  # streaming VAE-decoder cache, leaves (B, P, ...)
     latent_BP1hwC: jax.Array  # (B, P, 1, h, w, C) f32: the last generated latent frame (the next step commits it)
     frame0_BPHW3: jax.Array  # (B, P, H, W, 3) uint8: latent frame 0 decoded (init / reset); with the refiner the first frame
@@ -238,7 +238,7 @@ class Programs:
                 nnx.merge(self.graphdefs[2], params.image_encoder))
 
     def _dit_args(self, z_PFhwC, t, ws_parts, start):
-        """``WorldDiT.*_step_cached`` arguments for one world (DiT batch 1): F frames at positions
+        """``WorldDiT.decode`` arguments for one world (DiT batch 1): F frames at positions
         ``start``.., ``t`` a scalar or (F,) timesteps. ``ws_parts`` = (cond (P, F, h, w, Cc), the context
         as its per-layer cross-attention K/V (``WorldDiT.context_kv``, computed at init), the action
         sequence (P, k * (F - 1) + action_window, A), the DiT cache)."""
@@ -253,7 +253,7 @@ class Programs:
     def _velocity(self, dit, z_P1hwC, t, ws_parts, start):
         """v of one latent frame (a denoising pass: the cache is read, not updated): v_P1hwC.
         ``dit`` = (the DiT, its blocks one module per layer)."""
-        v = dit[0].denoise_step_cached(*self._dit_args(z_P1hwC, t, ws_parts, start), layers=dit[1])
+        v, _ = dit[0].decode(*self._dit_args(z_P1hwC, t, ws_parts, start), layers=dit[1])
         return from_stream(self.cfg, v)[0]
 
     def _window(self, ws: WorldState, actions_PkA):
@@ -281,7 +281,7 @@ class Programs:
 
     def _first_pass(self, dit, ws: WorldState, actions_PkA):
         """The fused pass of a step: commit latent frame i - 1 (``ws.latent_BP1hwC`` at t = 0) and the
-        first denoising pass of frame i (``WorldDiT.commit_denoise_step_cached``).
+        first denoising pass of frame i, as one pass of two frames (``WorldDiT.decode``, ``commit=1``).
 
         Returns (z: frame i's initial noise, k_renoise, v of that pass, the cache with frame i - 1)."""
         i = ws.frame_index_B
@@ -291,9 +291,9 @@ class Programs:
         cond = jnp.concatenate([self._cond_at(ws, i - 1), self._cond_at(ws, i)], axis=1)
         actions = jnp.concatenate([ws.actions_BPWA, actions_PkA.astype(jnp.float32)], axis=1)  # windows i-1, i
         t = jnp.asarray([0.0, self.timesteps[0]], jnp.float32)
-        v, cache = dit[0].commit_denoise_step_cached(*self._dit_args(x, t, (cond, ws.context_kv, actions, ws.dit_cache),
-                                                                     i - 1), layers=dit[1])
-        return z, k_renoise, from_stream(self.cfg, v)[0], cache
+        v, cache = dit[0].decode(*self._dit_args(x, t, (cond, ws.context_kv, actions, ws.dit_cache), i - 1),
+                                 commit=1, layers=dit[1])
+        return z, k_renoise, from_stream(self.cfg, v[:, :, 1:])[0], cache
 
     def _denoise_world(self, params, ws: WorldState, actions_PkA):
         """Latent frame i of one world and the DiT cache with frame i - 1 committed."""
@@ -350,11 +350,11 @@ class Programs:
         dit, layers, vae, encoder = self._modules(params)
         first = frames_to_model(first_PHW3_uint8)
         context = encoder(first)  # (P, M, Ce)
-        context_kv = dit.context_kv(to_stream(cfg, context[None]), layers).unstack()  # per layer (1, P, N, M, K)
+        context_kv = dit.context_kv(to_stream(cfg, context[None]), layers)  # per layer (1, P, N, M, K)
         dit = (dit, layers)
         cond = self._cond_table(vae, first)
         actions = jnp.repeat(first_actions_PA.astype(jnp.float32)[:, None], cfg.action_window, axis=1)
-        cache = kv_cache.unstack(kv_cache.init_cache(cfg, 1))  # batch 1: the DiT sees one world at a time
+        cache = kv_cache.init_cache(cfg, 1)  # batch 1: the DiT sees one world at a time
         start = jnp.zeros((), jnp.int32)
         parts = (cond[:, :1], context_kv, actions, cache)
         key, frame_key = jax.random.split(key)

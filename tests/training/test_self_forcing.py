@@ -144,7 +144,7 @@ def test_checkpointed_recompute_equals_rollout_x0(x0_and_grad, exit_index):
 
 
 def test_rollout_with_last_exit_is_the_sampler(cfg, generator, batch, x0_and_grad):
-    """s = n-1 runs every step: frame 0 (empty cache) equals ``sampler.sample_frame`` over ``decode_step``
+    """s = n-1 runs every step: frame 0 (empty cache) equals ``sampler.sample_frame`` over ``WorldDiT.decode``
     with the rollout's noise keys; an earlier exit gives a different frame."""
     graphdef, params, rest = generator
     n = len(cfg.sampler.ar_timesteps)
@@ -153,7 +153,11 @@ def test_rollout_with_last_exit_is_the_sampler(cfg, generator, batch, x0_and_gra
     cache = kv_cache.init_cache(cfg, 1)
     inputs = (batch["cond"][:, :, :1], batch["context"], window_at(batch["mouse"], cfg, 0),
               window_at(batch["keyboard"], cfg, 0))
-    decode = jax.jit(lambda p, x, t: nnx.merge(graphdef, p, rest).decode_step(x, t, *inputs, cache, 0)[0])
+    def decode(p, x, t):
+        dit = nnx.merge(graphdef, p, rest)
+        return dit.decode(x, t, inputs[0], dit.context_kv(inputs[1]), *inputs[2:], cache, 0)[0]
+
+    decode = jax.jit(decode)
     denoise = lambda x, t: decode(params, x, jnp.full(x.shape[:3], t))
     expected = sampler.sample_frame(denoise, z, k_renoise, sampler.ar_schedule(cfg.sampler))
     x0_last, _ = x0_and_grad["naive"](jnp.int32(n - 1))

@@ -84,7 +84,7 @@ def test_camera_warp_config_and_cache():
     assert cfg.patch_in_channels == cfg.in_channels + cfg.out_channels
     assert WorldModelConfig.test().patch_in_channels == WorldModelConfig.test().in_channels
     cache = kv_cache.init_cache(cfg, 3)
-    assert cache.latent.shape == (cfg.dit.num_layers, 3, 2, cfg.latent_height, cfg.latent_width, cfg.out_channels)
+    assert cache.latent.shape == (3, 2, cfg.latent_height, cfg.latent_width, cfg.out_channels)  # once, not per layer
     assert kv_cache.init_cache(WorldModelConfig.test(), 1).latent is None
 
 

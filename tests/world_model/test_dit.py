@@ -29,7 +29,10 @@ causal_fn = nnx.jit(lambda m, *a: m.forward_causal(*a))
 bidirectional_fn = nnx.jit(lambda m, *a: m.forward_bidirectional(*a))
 teacher_forcing_fn = nnx.jit(lambda m, *a, kv_grad: m.forward_teacher_forcing(*a, kv_grad=kv_grad),
                              static_argnames="kv_grad")
-decode_fn = nnx.jit(lambda m, *a: m.decode_step(*a))
+# the cached pass with the context given raw (its per-layer K/V computed in the same program)
+decode_fn = nnx.jit(lambda m, x, t, cond, context, *a, commit=0: m.decode(x, t, cond, m.context_kv(context), *a,
+                                                                           commit=commit),
+                    static_argnames="commit")
 
 
 def _cfg(players: int = 2, method: str = "attn") -> WorldModelConfig:
@@ -183,7 +186,7 @@ def _rollout(cfg, model, inp) -> dict:
                   window_at(inp["keyboard"], cfg, i), cache)
         v, _ = decode_fn(model, inp["noisy"][:, :, sl], inp["t"][:, :, sl], *common, i)
         v_shift, _ = decode_fn(model, inp["noisy"][:, :, sl], inp["t"][:, :, sl], *common, i + 1)
-        v_commit, cache = decode_fn(model, inp["clean"][:, :, sl], zero_t[:, :, sl], *common, i)
+        v_commit, cache = decode_fn(model, inp["clean"][:, :, sl], zero_t[:, :, sl], *common, i, commit=1)
         out["denoise"].append(v[:, :, 0])
         out["shifted"].append(v_shift[:, :, 0])
         out["commit"].append(v_commit[:, :, 0])
@@ -232,44 +235,50 @@ def test_shifted_query_rope_start_changes_outputs(rollout):
     assert (diff[1:] > 1e-3).all(), diff
 
 
-decode_cached_fn = nnx.jit(lambda m, *a: m.decode_step_cached(*a))
-denoise_cached_fn = nnx.jit(lambda m, *a: m.denoise_step_cached(*a))
+decode_ctx_kv_fn = nnx.jit(lambda m, *a, commit: m.decode(*a, commit=commit), static_argnames="commit")
 context_kv_fn = nnx.jit(lambda m, c: m.context_kv(c))
 
 
 @pytest.mark.parametrize("method", ["attn", "concat"])
-def test_cached_context_kv_equals_recomputing_it(method):
-    """decode_step_cached(context_kv(context)) == decode_step(context) (and denoise_step_cached == its
-    velocity) for a pass against an empty cache and one holding a frame; the caches written agree too."""
+def test_denoise_pass_leaves_the_cache_and_equals_the_commit_pass(method):
+    """``decode`` with the context's per-layer K/V (``context_kv``, one (B, P, N, M, K) array per layer):
+    a denoising pass (commit=0) returns the cache as it was and the commit pass's velocity, against an
+    empty cache and one holding a frame; the commit pass writes the frame into every layer."""
     cfg = _cfg(players=2, method=method)
     model, inp = _build(cfg, seed=7), _inputs(cfg, seed=7)
     ctx_kv = context_kv_fn(model, inp["context"])
     layers, b, p = cfg.dit.num_layers, BATCH, cfg.stream_players
-    assert ctx_kv.k_LBPNMK.shape == (layers, b, p, cfg.dit.num_heads, inp["context"].shape[2], cfg.dit.head_dim)
+    assert len(ctx_kv.k_BPNMK) == len(ctx_kv.v_BPNMK) == layers
+    assert {a.shape for a in ctx_kv.k_BPNMK + ctx_kv.v_BPNMK} == {
+        (b, p, cfg.dit.num_heads, inp["context"].shape[2], cfg.dit.head_dim)}
     cache = kv_cache.init_cache(cfg, BATCH, jnp.float32)
+    per_frame = p * cfg.tokens_per_frame
     for i in range(2):
         sl = slice(i, i + 1)
         rest = (window_at(inp["mouse"], cfg, i), window_at(inp["keyboard"], cfg, i), cache, i)
         head = (inp["noisy"][:, :, sl], inp["t"][:, :, sl], inp["cond"][:, :, sl])
-        v_ref, cache_ref = decode_fn(model, *head, inp["context"], *rest)
-        v, cache_new = decode_cached_fn(model, *head, ctx_kv, *rest)
-        assert float(jnp.abs(v_ref).mean()) > 0.05
-        np.testing.assert_allclose(v, v_ref, atol=1e-5, rtol=0)
-        np.testing.assert_allclose(denoise_cached_fn(model, *head, ctx_kv, *rest), v_ref, atol=1e-5, rtol=0)
-        jax.tree.map(lambda a, r: np.testing.assert_allclose(a, r, atol=1e-5, rtol=0), cache_new, cache_ref)
-        _, cache = decode_fn(model, inp["clean"][:, :, sl], jnp.zeros_like(inp["t"][:, :, sl]), inp["cond"][:, :, sl],
-                             inp["context"], *rest)
+        v_commit, cache_new = decode_ctx_kv_fn(model, *head, ctx_kv, *rest, commit=1)
+        v, cache_same = decode_ctx_kv_fn(model, *head, ctx_kv, *rest, commit=0)
+        assert float(jnp.abs(v_commit).mean()) > 0.05
+        np.testing.assert_allclose(v, v_commit, atol=1e-5, rtol=0)
+        jax.tree.map(np.testing.assert_array_equal, cache_same, cache)
+        assert [int(c.self_attn.length) for c in cache_new.layers] == [(i + 1) * per_frame] * layers
+        _, cache = decode_ctx_kv_fn(model, inp["clean"][:, :, sl], jnp.zeros_like(inp["t"][:, :, sl]),
+                                    inp["cond"][:, :, sl], ctx_kv, *rest, commit=1)
     with pytest.raises(ValueError, match="context_kv.k"):
-        decode_cached_fn(model, *head, ctx_kv._replace(k_LBPNMK=ctx_kv.k_LBPNMK[1:]), *rest)
+        decode_ctx_kv_fn(model, *head, ctx_kv._replace(k_BPNMK=ctx_kv.k_BPNMK[1:]), *rest, commit=0)
+    with pytest.raises(ValueError, match="commit=2"):  # more frames committed than given
+        decode_ctx_kv_fn(model, *head, ctx_kv, *rest, commit=2)
 
 
 def test_cache_after_rollout(cfg2, rollout):
     cache = rollout["cache"]
-    np.testing.assert_array_equal(cache.self_attn.length, [cfg2.cache_tokens] * cfg2.dit.num_layers)
+    lengths = lambda name: np.asarray([getattr(layer, name).length for layer in cache.layers])
+    np.testing.assert_array_equal(lengths("self_attn"), [cfg2.cache_tokens] * cfg2.dit.num_layers)
     # the action caches exist for every layer but only layers < num_action_blocks write them
     n_action = cfg2.action.num_action_blocks
-    assert (np.asarray(cache.mouse.length)[:n_action] == cfg2.dit.window).all()
-    assert (np.asarray(cache.keyboard.length)[n_action:] == 0).all()
+    assert (lengths("mouse")[:n_action] == cfg2.dit.window).all()
+    assert (lengths("keyboard")[n_action:] == 0).all()
 
 
 # ---------------------------------------------------------------------------------------------
@@ -419,9 +428,9 @@ def test_bad_shapes_raise_value_errors(cfg2, model2, inp2):
         with pytest.raises(ValueError):
             model2.forward_causal(*wrong)
     cache = kv_cache.init_cache(cfg2, BATCH)
-    with pytest.raises(ValueError):  # decode takes exactly one frame
-        model2.decode_step(*_seq_args(inp2)[:4], inp2["mouse"][:, :, :cfg2.action_window],
-                           inp2["keyboard"][:, :, :cfg2.action_window], cache, 0)
+    with pytest.raises(ValueError, match="mouse"):  # F frames take the actions of F frames, not one window
+        model2.decode(*_seq_args(inp2)[:3], model2.context_kv(inp2["context"]),
+                      inp2["mouse"][:, :, :cfg2.action_window], inp2["keyboard"][:, :, :cfg2.action_window], cache, 0)
 
 
 def test_concat_stream_helpers_and_forward_shapes():

@@ -82,19 +82,23 @@ def test_init_cache_shapes_for_solaris(method, players):
     cfg = WorldModelConfig.solaris(num_players=players, dit=DiTConfig(multiplayer=method))
     cache = jax.eval_shape(lambda: kv_cache.init_cache(cfg, batch=3))  # no 2 GB allocation
     p = players if method == "attn" else 1
-    assert cache.self_attn.k.shape == (30, 3, 12, 6 * p * 880, 128)  # heads-major
-    assert cache.self_attn.size == 6 * p * 880
-    assert cache.mouse.k.shape == (30, 3 * p * 880, 16, 6, 64)  # heads-major
-    assert cache.keyboard.v.shape == (30, 3 * p, 16, 6, 64)
-    assert cache.self_attn.length.shape == (30,) and cache.self_attn.length.dtype == jnp.int32
+    assert len(cache.layers) == 30  # one cache per layer
+    for layer in cache.layers:
+        assert layer.self_attn.k.shape == (3, 12, 6 * p * 880, 128)  # heads-major
+        assert layer.self_attn.size == 6 * p * 880
+        assert layer.mouse.k.shape == (3 * p * 880, 16, 6, 64)  # heads-major
+        assert layer.keyboard.v.shape == (3 * p, 16, 6, 64)
+        assert layer.self_attn.length.shape == () and layer.self_attn.length.dtype == jnp.int32
     assert cfg.cache_tokens == 6 * p * 880
 
 
 def test_init_cache_is_empty_and_uses_requested_dtype():
     cfg = WorldModelConfig.test()
     cache = kv_cache.init_cache(cfg, batch=1, dtype=jnp.bfloat16)
-    assert cache.self_attn.k.dtype == jnp.bfloat16 and not cache.self_attn.k.any()
-    assert not np.asarray(kv_cache.valid_mask(cache.mouse)).any()
+    assert len(cache.layers) == cfg.dit.num_layers
+    for layer in cache.layers:
+        assert layer.self_attn.k.dtype == jnp.bfloat16 and not layer.self_attn.k.any()
+        assert not np.asarray(kv_cache.valid_mask(layer.mouse)).any()
 
 
 def test_heads_major_layout_rolls_like_the_default():
@@ -125,20 +129,3 @@ def test_kept_mask_marks_the_slots_valid_after_an_update(length, n_new):
     kept = np.asarray(kv_cache.kept_mask(cache, n_new))
     after = np.asarray(updated.k[0, :, 0, 0])[np.asarray(kv_cache.valid_mask(updated))]
     np.testing.assert_array_equal(np.arange(size)[kept], after[after >= 0])  # old entries still seen
-
-
-def test_unstack_gives_each_layer_its_cache_and_stack_inverts_it():
-    cfg = WorldModelConfig.test()
-    cache = kv_cache.init_cache(cfg, batch=2)
-    cache = cache.replace(self_attn=cache.self_attn.replace(
-        k=jax.random.normal(jax.random.key(0), cache.self_attn.k.shape),
-        length=jnp.arange(cfg.dit.num_layers, dtype=jnp.int32)))
-    layers = kv_cache.unstack(cache)
-    assert len(layers) == cfg.dit.num_layers
-    for i, layer in enumerate(layers):
-        np.testing.assert_array_equal(layer.self_attn.k, cache.self_attn.k[i])
-        assert int(layer.self_attn.length) == i and layer.mouse.layout == "BNSK"
-    back = kv_cache.stack(layers)
-    for a, b in zip(jax.tree.leaves(back), jax.tree.leaves(cache)):
-        np.testing.assert_array_equal(a, b)
-    assert jax.tree.structure(back) == jax.tree.structure(cache)

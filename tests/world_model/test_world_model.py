@@ -1,5 +1,5 @@
 """The streaming WorldModel API: shapes, determinism, per-world reset, flat memory, input checks, and the
-streaming step == an offline rollout written here with the DiT's decode_step (docs/model.md §5.3-§5.5).
+streaming step == an offline rollout written here with the DiT's decode (docs/model.md §5.3-§5.5).
 
 Models use the ``test`` preset with random non-degenerate weights (the real init's zero head would make
 every velocity 0 and the sampler trivial).
@@ -118,7 +118,7 @@ def test_concat_variant_streams():
     state = model_c.init(first_frames(model_c, batch=1), 0)
     frames, state = model_c.step(state, random_actions(model_c, 1, 1)[0])
     assert frames.shape == (1, 2, 4, 32, 32, 3) and frames.dtype == jnp.uint8
-    assert state.dit_cache[0].self_attn.size == model_c.config.cache_tokens  # one stream player
+    assert state.dit_cache.layers[0].self_attn.size == model_c.config.cache_tokens  # one stream player
     assert np.isfinite(np.asarray(state.latent_BP1hwC)).all()
 
 
@@ -151,7 +151,7 @@ def test_memory_flat_and_step_compiles_once(model):
     assert model._step_fn._cache_size() == compiled == 1
     np.testing.assert_array_equal(state.frame_index_B, [21, 21])
     # the cache saturates at the window: every slot valid, shapes unchanged
-    assert (np.asarray([c.self_attn.length for c in state.dit_cache]) == model.config.cache_tokens).all()
+    assert (np.asarray([c.self_attn.length for c in state.dit_cache.layers]) == model.config.cache_tokens).all()
 
 
 def test_unrolled_programs_compute_the_same_step(model):
@@ -258,7 +258,7 @@ def test_bad_inputs_raise_before_compute(model):
 
 
 # ---------------------------------------------------------------------------------------------
-# Streaming == offline rollout (the DiT's decode_step driven by a loop written here)
+# Streaming == offline rollout (the DiT's decode driven by a loop written here)
 # ---------------------------------------------------------------------------------------------
 
 
@@ -317,7 +317,12 @@ def offline_rollout(model, rollout):
     windows = action_windows(left_pad_actions(seq, cfg.action_left_padding), cfg, num_frames)
     kb = cfg.action.keyboard_dim
     gd, params = nnx.split(dit)
-    decode = jax.jit(lambda prm, *a: nnx.merge(gd, prm).decode_step(*a))
+
+    def decode_pass(prm, x, t, cond, context, *rest, commit=0):
+        m = nnx.merge(gd, prm)
+        return m.decode(x, t, cond, m.context_kv(context), *rest, commit=commit)
+
+    decode = jax.jit(decode_pass, static_argnames="commit")
     timesteps = [1000.0, 750.0, 500.0, 250.0, 0.0]
     keys = list(jax.random.split(rollout["rng"], B))
     cache = kv_cache.init_cache(cfg, B)
@@ -328,7 +333,7 @@ def offline_rollout(model, rollout):
         keys, frame_keys, z, eps = _frame_noise(keys, (p, 1, cfg.latent_height, cfg.latent_width,
                                                        cfg.latent_channels), 4)
         if i:  # the commit pass writes frame i - 1 (clean)
-            _, cache = decode(*args(i - 1, x0, 0.0))
+            _, cache = decode(*args(i - 1, x0, 0.0), commit=1)
         for s, t in enumerate(timesteps[:-1]):
             v, _ = decode(*args(i, z, t))
             x0 = z - (t / 1000.0) * v
