@@ -30,7 +30,6 @@ from training.episodes import (
     BAD_JSON,
     BAD_RENDER_TIME,
     COUNT_MISMATCH,
-    INVALID_EPISODE,
     MISSING_FILE,
     EpisodeError,
     EpisodeTable,
@@ -157,12 +156,7 @@ class DuetDataset(EpisodeTable):
 
     def recordings(self, episode_id: int) -> tuple[BotRecording, BotRecording]:
         """Both bots' recordings; raises EpisodeError for an invalid episode."""
-        if not 0 <= episode_id < self.num_episodes:
-            raise IndexError(f"episode id {episode_id} outside [0, {self.num_episodes})")
-        episode = self._episodes[episode_id]
-        if episode is None:
-            raise EpisodeError(INVALID_EPISODE, f"episode {episode_id} ({self.stems[episode_id]}) was skipped")
-        return episode
+        return self._entry(episode_id, lambda: f"episode {episode_id} ({self.stems[episode_id]})")
 
     def render_times(self, episode_id: int) -> tuple[np.ndarray, np.ndarray]:
         """Per-record renderTime (ms, float64) of both bots."""

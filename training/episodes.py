@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import logging
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import NamedTuple
 
 logger = logging.getLogger(__name__)
@@ -78,6 +78,16 @@ class EpisodeTable:
 
     def is_valid(self, episode_id: int) -> bool:
         return 0 <= episode_id < self.num_episodes and self._episodes[episode_id] is not None
+
+    def _entry(self, episode_id: int, name: Callable[[], str]):
+        """The table's entry of ``episode_id``: IndexError outside the table, EpisodeError for an invalid episode
+        (``name()`` names it in the message)."""
+        if not 0 <= episode_id < self.num_episodes:
+            raise IndexError(f"episode id {episode_id} outside [0, {self.num_episodes})")
+        episode = self._episodes[episode_id]
+        if episode is None:
+            raise EpisodeError(INVALID_EPISODE, f"{name()} was skipped")
+        return episode
 
     def _init_skips(self) -> None:
         self.skipped: Counter[str] = Counter()

@@ -29,7 +29,6 @@ from solaris_env.spaces import (
 from training.episodes import (
     BAD_JSON,
     COUNT_MISMATCH,
-    INVALID_EPISODE,
     MISSING_FILE,
     EpisodeError,
     EpisodeTable,
@@ -136,12 +135,7 @@ class VPTDataset(EpisodeTable):
 
 
     def episode(self, episode_id: int) -> VPTEpisode:
-        if not 0 <= episode_id < self.num_episodes:
-            raise IndexError(f"episode id {episode_id} outside [0, {self.num_episodes})")
-        episode = self._episodes[episode_id]
-        if episode is None:
-            raise EpisodeError(INVALID_EPISODE, f"vpt episode {episode_id} was skipped")
-        return episode
+        return self._entry(episode_id, lambda: f"vpt episode {episode_id}")
 
     def segment(self, episode_id: int, start: int, num_frames: int) -> tuple[np.ndarray, np.ndarray]:
         """``obs_T1HW3`` = frames ``[start+1, start+T+1)``, ``act_T125`` = ticks ``[start, start+T)``.
