@@ -41,6 +41,7 @@ from solaris_env.world_model.world_model import frames_to_model
 from training.duet import DuetDataset
 from training.episodes import DECODE_ERROR, EpisodeError, SegmentMP, SegmentSP
 from training.latent_cache import LatentCache
+from training.samplers import draw_loaded
 
 logger = logging.getLogger(__name__)
 
@@ -204,13 +205,7 @@ class LatentClips:
 
     def next_batch(self, sampler, batch_size: int, num_frames: int) -> dict[str, np.ndarray]:
         """Draw ``batch_size`` clips (skipping episodes that fail, like ``training.samplers.next_batch``)."""
-        out = []
-        while len(out) < batch_size:
-            segment = sampler.next()
-            try:
-                out.append(self.load(segment, num_frames))
-            except EpisodeError:
-                continue
+        out = draw_loaded(sampler, lambda segment: self.load(segment, num_frames), batch_size)
         x0, first, act = (np.stack(parts) for parts in zip(*out))
         return {"x0": x0, "first": first, "act": act}
 

@@ -249,12 +249,17 @@ def next_batch(dataset, sampler: _ResumableSampler, batch_size: int, num_frames:
     next draw (the failure is logged and counted in ``dataset.skipped``). Deterministic given the
     sampler state, so it resumes exactly with the sampler."""
     num_frames = num_frames or sampler.num_frames
-    samples = []
-    while len(samples) < batch_size:
+    return make_batch(draw_loaded(sampler, lambda seg: dataset.load(seg, num_frames), batch_size), num_frames)
+
+
+def draw_loaded(sampler, load, batch_size: int) -> list:
+    """``batch_size`` results of ``load(sampler.next())``, drawing again when an episode fails (EpisodeError)."""
+    out = []
+    while len(out) < batch_size:
         segment = sampler.next()
         try:
-            samples.append(dataset.load(segment, num_frames))
+            out.append(load(segment))
         except EpisodeError:
             continue
-    return make_batch(samples, num_frames)
+    return out
 
