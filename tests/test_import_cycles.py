@@ -17,9 +17,13 @@ PACKAGES = ("solaris_env", "training", "agents", "benchmarks")
 
 
 def _module_files() -> dict[str, Path]:
+    """Python files inside regular packages only: a directory without ``__init__.py`` (node_modules of the
+    Minecraft backend, which ships Python 2 build scripts) is not importable as ours and is skipped."""
     modules = {}
     for package in PACKAGES:
         for path in sorted((ROOT / package).rglob("*.py")):
+            if any(not (d / "__init__.py").is_file() for d in path.parents if d.is_relative_to(ROOT / package)):
+                continue
             parts = path.relative_to(ROOT).with_suffix("").parts
             if parts[-1] == "__init__":
                 parts = parts[:-1]
