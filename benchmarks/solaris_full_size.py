@@ -35,7 +35,8 @@ import numpy as np
 from benchmarks.machine import machine_info, write_result
 
 RESULTS = Path(__file__).parent / "results" / "solaris_full_size.json"
-TREE = Path(__file__).resolve().parent.parent / "tests" / "world_model" / "fixtures" / "solaris-param-tree.txt"
+TREE = (Path(__file__).resolve().parent.parent / "tests" / "solaris_env" / "world_model" / "fixtures"
+        / "solaris-param-tree.txt")
 
 
 def official_layout(cfg, dtype: str):

@@ -78,15 +78,16 @@ def measure(preset: str, steps: int, episodes: int, workdir: Path) -> tuple[dict
         cfg[stage].update(steps=n, log_every=log_every, ckpt_every=n, sample_every=n)
         if stage == "vae":
             cfg[stage].update(eval_clips=4, stats_clips=8)
+    measured = TrainingConfig.from_dict(cfg, f"{preset} for the measurement")
     data, out = workdir / "data", workdir / "run"
     t0 = time.perf_counter()
-    collect_if_missing(data, preset, cfg["collect"])
+    collect_if_missing(data, preset, measured.collect)
     walls = {"collect": time.perf_counter() - t0}
     args = argparse.Namespace(preset=preset, config=None, data=str(data), out=str(out), seed=None, no_resume=False,
                                fsdp=False, steps=None)
     for stage in STAGES:
         t = time.perf_counter()
-        cli.run_stage(stage, args, TrainingConfig.from_dict(cfg, f"{preset} for the measurement"))
+        cli.run_stage(stage, args, measured)
         walls[stage] = time.perf_counter() - t
     stages = summarise_run(out, cfg)
     for stage, s in stages.items():

@@ -159,7 +159,7 @@ class DreamParallelEnv(PlayerViewsEnv, ParallelEnv):
     Determinism: the same seed and actions give identical frames (bit-exact) in one process and across processes on
     one machine and JAX build (measured: the test preset and the shipped model, a fresh compile or the persistent
     compilation cache, 1 or 2 cores, Eigen multi-threading on or off: 0 differing pixels;
-    ``tests/env/test_dream_parallel.py``). Another CPU or XLA build may round differently.
+    ``tests/solaris_env/test_dream_env.py``). Another CPU or XLA build may round differently.
 
     Observations, ``infos[agent]["frames"]`` and ``render()`` are arrays the caller owns (copies: ~10 us a step
     at 64x64); ``step_frames()`` is a read-only view of the env's buffer.

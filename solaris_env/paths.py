@@ -8,7 +8,7 @@ means nothing anywhere else, so the scripts of ``benchmarks/``, ``agents/`` and 
 * :func:`portable_text`: a command line, spec or note (``ppo:/abs/step.zip``, ``--out /abs/x``, a plain name)
   with every absolute path in it made portable and everything else kept as given.
 
-``tests/test_paths.py`` scans the committed results and docs for absolute paths. Standard library only.
+``tests/test_no_absolute_paths.py`` scans the committed results and docs for absolute paths. Standard library only.
 """
 
 from __future__ import annotations

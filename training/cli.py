@@ -27,11 +27,10 @@ from training.collect import collect_if_missing
 from training.stage_config import (
     EXTRA_STAGES,
     STAGES,
+    AllConfig,
     TrainingConfig,
     load_stage_config,
 )
-
-ELASTIC_STAGES = ("sp", "mp-bidirectional", "mp-causal")  # may end early to keep `all` within its time budget
 
 
 def run_stage(stage: str, args, stage_cfg: TrainingConfig, deadline: float | None = None) -> Path:
@@ -39,7 +38,7 @@ def run_stage(stage: str, args, stage_cfg: TrainingConfig, deadline: float | Non
 
     seed = stage_cfg.seed if args.seed is None else args.seed
     kw = {"seed": seed, "steps": args.steps, "resume": not args.no_resume, "fsdp": args.fsdp}
-    if deadline is not None:  # an elastic stage (ELASTIC_STAGES)
+    if deadline is not None:  # the elastic stage (AllConfig.elastic_stage)
         kw["deadline"] = deadline
     return call_stage(stage, args.out, args.data, stage_cfg, **kw)
 
@@ -51,20 +50,14 @@ def cmd_stage(args) -> int:
     return 0
 
 
-def budget_settings(args, block: dict) -> tuple[float | None, str, float]:
+def budget_settings(args, block: AllConfig) -> tuple[float | None, str, float]:
     """(budget in seconds or None, elastic stage, reserve in seconds) from ``--time-budget-min`` and the
-    config's ``all`` block (``TrainingConfig.all``: optional ``time_budget_min``, ``elastic_stage``,
-    ``reserve_min``); a budget of 0 or none means every stage runs its configured steps (``training.budget``)."""
-    minutes = block.get("time_budget_min") if args.time_budget_min is None else args.time_budget_min
-    elastic = block.get("elastic_stage", "mp-causal")
-    reserve = float(block.get("reserve_min", 0.0))
-    if elastic not in ELASTIC_STAGES:
-        raise ValueError(f"all.elastic_stage must be one of {ELASTIC_STAGES}, got {elastic!r}")
+    config's ``all`` block (``TrainingConfig.all``); a budget of 0 or none means every stage runs its configured
+    steps (``training.budget``)."""
+    minutes = block.time_budget_min if args.time_budget_min is None else args.time_budget_min
     if minutes is not None and not float(minutes) >= 0:
         raise ValueError(f"time budget must be >= 0 minutes (0: none), got {minutes}")
-    if not reserve >= 0:
-        raise ValueError(f"all.reserve_min must be >= 0, got {reserve}")
-    return (float(minutes) * 60 if minutes else None), elastic, reserve * 60
+    return (float(minutes) * 60 if minutes else None), block.elastic_stage, block.reserve_min * 60
 
 
 def cmd_all(args) -> int:

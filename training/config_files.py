@@ -36,7 +36,7 @@ def read_json_config(path: str | Path) -> dict:
         chain.append(path)
         data = json.loads(path.read_text())
         if not isinstance(data, dict):
-            raise ValueError(f"{path}: a config must be a JSON object, got {type(data).__name__}")
+            raise ValueError(f"{path}: a config must be a JSON object, got {type(data).__name__}")  # noqa: TRY004
         base = data.get("extends")
         if base is None:
             break

@@ -70,6 +70,7 @@ from training.growing_data import STREAMS, data_record
 from training.stage_config import (
     STAGE_CONFIGS,
     STAGES,
+    CollectConfig,
     TrainingConfig,
     load_stage_config,
 )
@@ -144,7 +145,7 @@ class SprintConfig:
     save_every_min: float
     export_from: str  # periodic exports from this stage on
     export: dict  # shard_mib, max_total_mib, storage_dtype
-    collect: dict  # training.collect.collect_argv's block
+    collect: CollectConfig  # training.collect.collect_argv's block
     min_train_episodes: int
     rescan_s: float
     compile_cache: bool
@@ -184,10 +185,12 @@ class SprintConfig:
         _number(data["rescan_s"], f"{where}: rescan_s", low=0.1)
         _number(data["min_train_episodes"], f"{where}: min_train_episodes", low=1, integer=True)
         if not isinstance(data["compile_cache"], bool):
-            raise ValueError(f"{where}: compile_cache must be true or false, got {data['compile_cache']!r}")
+            raise ValueError(  # noqa: TRY004  (a bad config is a ValueError throughout)
+                f"{where}: compile_cache must be true or false, got {data['compile_cache']!r}")
         devices = {platform: DeviceSettings.from_dict(block, f"{where}: devices.{platform}")
                    for platform, block in data["devices"].items()}
-        return cls(**{**data, "devices": devices})
+        collect = CollectConfig.from_dict(data["collect"], f"{where}: collect")
+        return cls(**{**data, "devices": devices, "collect": collect})
 
     def device(self, platform: str) -> DeviceSettings:
         if platform not in self.devices:
@@ -259,7 +262,7 @@ class Collector:
     ``stop()`` ends the workers (an episode being written is abandoned: its staging dir is cleaned at
     the next start, and the final directories never hold part of one)."""
 
-    def __init__(self, data_dir: Path, preset_name: str, block: dict, workers: int, test_first: bool,
+    def __init__(self, data_dir: Path, preset_name: str, block: CollectConfig, workers: int, test_first: bool,
                  nice: int = 0, compile_cache: str | None = None) -> None:
         from solaris_env.engine import cli as engine_cli
         from solaris_env.engine.recorder import clean_staging, episode_complete
@@ -533,7 +536,7 @@ class Sprint:
         self.device = cfg.device(self.platform)
         init_lineage = read_lineage(init) if init else None
         generation = (init_lineage or {}).get("generation", 0) + 1
-        self.collect_block = {**cfg.collect, "seed": int(cfg.collect["seed"]) + 1000 * (generation - 1)}
+        self.collect_block = dataclasses.replace(cfg.collect, seed=cfg.collect.seed + 1000 * (generation - 1))
         self.lineage = {
             "format": LINEAGE_FORMAT, "version": 1, "generation": generation,
             "command": [portable_text(a, parts=3) for a in args.command()],  # no machine's absolute paths
@@ -541,7 +544,8 @@ class Sprint:
             "init": None if init is None else {"model": portable_text(args.init, parts=3), "lineage": init_lineage},
             "devices": [str(d) for d in jax.devices()], "platform": self.platform,
             "device_kind": jax.devices()[0].device_kind, "git": git_commit(), "start_time": _iso(t0),
-            "budget_s": round(self.end - t0, 1), "collect": self.collect_block, "stages": [], "exports": []}
+            "budget_s": round(self.end - t0, 1), "collect": dataclasses.asdict(self.collect_block), "stages": [],
+            "exports": []}
         self.exporter = Exporter(Path(args.out) / "model", cfg, self.lineage, t0)
 
     def left_s(self) -> float:

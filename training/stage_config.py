@@ -4,9 +4,10 @@ kind, with every default in this module.
 
 A block is built with ``from_dict(block, where)``: an unknown key, a missing required key, a value of the wrong
 type or outside its range raises a ValueError that names ``where`` (the file and the stage), the field and what
-it expects. ``TrainingConfig`` is the whole file: the preset, the seed, the ``collect`` block
-(``training.collect``), the ``all`` block (``training.cli.budget_settings``) and one block per stage. The sprint
-applies its overrides to ``to_dict()``'s blocks and validates the result again (``training.sprint.stage_blocks``).
+it expects. ``TrainingConfig`` is the whole file: the preset, the seed, the ``collect`` block (``CollectConfig``:
+``training.collect``), the ``all`` block (``AllConfig``: ``training.cli.budget_settings``) and one block per stage.
+The sprint applies its overrides to ``to_dict()``'s blocks and validates the result again
+(``training.sprint.stage_blocks``); its own ``collect`` block is a ``CollectConfig`` too.
 """
 
 from __future__ import annotations
@@ -22,11 +23,22 @@ from training.config_files import read_json_config
 CONFIG_DIR = Path(__file__).parent / "configs"
 STAGES = ("vae", "vae-decoder", "sp", "mp-bidirectional", "mp-causal", "self-forcing", "refiner")  # ``all``, in order
 EXTRA_STAGES = ("mp-rollout",)  # not part of ``all``: run by name
+ELASTIC_STAGES = ("sp", "mp-bidirectional", "mp-causal")  # may end early to keep ``all`` within its time budget
+COLLECT_WORLDS = ("flat", "normal", "mixed")  # ``solaris-engine collect --world``
 
 
-def _field(default=dataclasses.MISSING, *, low=None, above=None, below=None, choices=None):
-    """A dataclass field with its allowed values: ``low <= x``, ``above < x``, ``x < below``, ``x in choices``."""
-    return field(default=default, metadata={"low": low, "above": above, "below": below, "choices": choices})
+def _field(default=dataclasses.MISSING, *, low=None, high=None, above=None, below=None, choices=None):
+    """A dataclass field with its allowed values: ``low <= x``, ``x <= high``, ``above < x``, ``x < below``,
+    ``x in choices``."""
+    return field(default=default, metadata={"low": low, "high": high, "above": above, "below": below,
+                                            "choices": choices})
+
+
+def _tuple_items(kind) -> tuple[type, int | None]:
+    """A tuple field's item type and length: ``tuple[float, float]`` -> (float, 2), ``tuple[str, ...]`` ->
+    (str, None: any length >= 1)."""
+    args = typing.get_args(kind)
+    return args[0], (None if args[-1] is Ellipsis else len(args))
 
 
 def _expected(kind, meta: dict) -> str:
@@ -38,15 +50,17 @@ def _expected(kind, meta: dict) -> str:
     if kind is str:
         return "a string"
     if typing.get_origin(kind) is tuple:
-        return f"a list of {len(typing.get_args(kind))} numbers"
+        item, n = _tuple_items(kind)
+        items = "strings" if item is str else "numbers"
+        return f"a non-empty list of {items}" if n is None else f"a list of {n} {items}"
     if dataclasses.is_dataclass(kind):
         return f"an object with the keys of {kind.__name__}"
     words = "an int" if kind is int else "a number"
-    low, above, below = meta.get("low"), meta.get("above"), meta.get("below")
-    if low is not None and below is not None:
-        return f"{words} in [{low:g}, {below:g})"
+    low, high, above, below = (meta.get(k) for k in ("low", "high", "above", "below"))
+    if low is not None and (below is not None or high is not None):
+        return f"{words} in [{low:g}, {below:g})" if below is not None else f"{words} in [{low:g}, {high:g}]"
     bounds = [f">= {low:g}" if low is not None else None, f"> {above:g}" if above is not None else None,
-              f"< {below:g}" if below is not None else None]
+              f"< {below:g}" if below is not None else None, f"<= {high:g}" if high is not None else None]
     return " ".join([words, *filter(None, bounds)])
 
 
@@ -61,18 +75,20 @@ def _convert(value, kind, meta: dict, where: str, name: str):
         return kind.from_dict(value, f"{where}: {name}")
     number = isinstance(value, (int, float)) and not isinstance(value, bool)
     if typing.get_origin(kind) is tuple:
-        ok = isinstance(value, (list, tuple)) and len(value) == len(typing.get_args(kind)) and all(
-            isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
-        value = tuple(float(v) for v in value) if ok else value
+        item, n = _tuple_items(kind)
+        ok = isinstance(value, (list, tuple)) and (len(value) == n if n is not None else len(value) >= 1) and all(
+            isinstance(v, str) if item is str else isinstance(v, (int, float)) and not isinstance(v, bool)
+            for v in value)
+        value = tuple(v if item is str else float(v) for v in value) if ok else value
     elif kind is int:
         ok = number and isinstance(value, int)
     elif kind is float:
         ok, value = number, float(value) if number else value
     else:
         ok = isinstance(value, kind)
-    low, above, below, choices = (meta.get(k) for k in ("low", "above", "below", "choices"))
-    ok = ok and (low is None or value >= low) and (above is None or value > above) and (
-        below is None or value < below) and (choices is None or value in choices)
+    low, high, above, below, choices = (meta.get(k) for k in ("low", "high", "above", "below", "choices"))
+    ok = ok and (low is None or value >= low) and (high is None or value <= high) and (
+        above is None or value > above) and (below is None or value < below) and (choices is None or value in choices)
     if not ok:
         expected = _expected(kind, meta) + (" or null" if optional else "")
         raise ValueError(f"{where}: {name} must be {expected}, got {value!r}")
@@ -87,7 +103,8 @@ class _Block:
     def from_dict(cls, block: dict, where: str):
         fields = {f.name: f for f in dataclasses.fields(cls)}
         if not isinstance(block, dict):
-            raise ValueError(f"{where}: expected an object with the keys of {cls.__name__}, got {block!r}")
+            raise ValueError(  # noqa: TRY004  (a bad config is a ValueError throughout)
+                f"{where}: expected an object with the keys of {cls.__name__}, got {block!r}")
         unknown = sorted(set(block) - set(fields))
         if unknown:
             raise ValueError(f"{where}: unknown keys {unknown}; {cls.__name__} takes {sorted(fields)}")
@@ -170,9 +187,36 @@ class RefinerStageConfig(StageConfig):
     lr: float = _field(above=0)
     rollout_parts: int = _field(low=1)
     segments_per_part: int = _field(low=1)
-    refiner: RefinerLayout = _field()
+    refiner: RefinerLayout = _field()  # noqa: RUF009  (a field(), no default)
     init_from: str = _field("self-forcing", choices=tuple(s for s in STAGES + EXTRA_STAGES if s != "refiner"))
     loss: str = _field("mse", choices=("mse", "log_mse"))  # training.refine.LOSSES
+
+
+@dataclass(frozen=True, kw_only=True)
+class CollectConfig(_Block):
+    """The ``collect`` block: the training data as ``solaris-engine collect`` records it
+    (``training.collect.collect_argv``; ``solaris-train all``, the sprint's background collect). ``instances``:
+    episode e runs on instance e mod this (the flat surface is instance mod 5, so >= 10 covers all five with
+    ``world: mixed``); ``types``: only these episode types. None: the engine's default."""
+
+    episodes: int = _field(low=1)
+    world: str = _field(choices=COLLECT_WORLDS)
+    seed: int = _field(low=0)
+    test_fraction: float = _field(low=0, high=1)  # the episodes in duet/test (``recorder.split_of``)
+    instances: int | None = _field(None, low=1)
+    types: tuple[str, ...] | None = _field(None)
+
+
+@dataclass(frozen=True, kw_only=True)
+class AllConfig(_Block):
+    """The ``all`` block: the wall-clock budget of ``solaris-train all`` (``training.cli.budget_settings``,
+    ``training.budget``). ``time_budget_min`` 0 or None: no budget, every stage runs its steps; else
+    ``elastic_stage`` ends early so that ``reserve_min`` minutes are left for the stages after it
+    (``--time-budget-min`` overrides the budget)."""
+
+    time_budget_min: float | None = _field(None, low=0)
+    elastic_stage: str = _field("mp-causal", choices=ELASTIC_STAGES)
+    reserve_min: float = _field(0.0, low=0)
 
 
 STAGE_CONFIGS: dict[str, type[StageConfig]] = {
@@ -184,13 +228,14 @@ STAGE_CONFIGS: dict[str, type[StageConfig]] = {
 @dataclass(frozen=True)
 class TrainingConfig:
     """A stage-config file: ``preset``, ``seed``, the ``collect`` block (None: ``all`` cannot record data), the
-    ``all`` block and ``stages`` ({stage: its block}; every stage of ``STAGES``, ``EXTRA_STAGES`` optional)."""
+    ``all`` block (absent: its defaults, no budget) and ``stages`` ({stage: its block}; every stage of
+    ``STAGES``, ``EXTRA_STAGES`` optional)."""
 
     preset: str
     stages: dict
-    seed: int = 0
-    collect: dict | None = None
-    all: dict = field(default_factory=dict)
+    seed: int = _field(0, low=0)
+    collect: CollectConfig | None = None
+    all: AllConfig = field(default_factory=AllConfig)
 
     @classmethod
     def from_dict(cls, data: dict, where: str) -> TrainingConfig:
@@ -204,20 +249,22 @@ class TrainingConfig:
             raise ValueError(f"{where}: missing keys {missing}")
         if not isinstance(data["preset"], str) or not data["preset"]:
             raise ValueError(f"{where}: preset must be a preset name, got {data['preset']!r}")
-        seed = data.get("seed", 0)
-        if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-            raise ValueError(f"{where}: seed must be an int >= 0, got {seed!r}")
-        for name in ("collect", "all"):
-            if name in data and not isinstance(data[name], dict):
-                raise ValueError(f"{where}: {name} must be an object, got {data[name]!r}")
         stages = {s: STAGE_CONFIGS[s].from_dict(data[s], f"{where} [{s}]") for s in STAGE_CONFIGS if s in data}
-        return cls(data["preset"], stages, seed, data.get("collect"), data.get("all", {}))
+        given = {}  # the optional keys present; the absent ones take the field defaults above
+        if "seed" in data:
+            seed_meta = next(f.metadata for f in dataclasses.fields(cls) if f.name == "seed")
+            given["seed"] = _convert(data["seed"], int, seed_meta, where, "seed")
+        if "collect" in data:
+            given["collect"] = CollectConfig.from_dict(data["collect"], f"{where} [collect]")
+        if "all" in data:
+            given["all"] = AllConfig.from_dict(data["all"], f"{where} [all]")
+        return cls(data["preset"], stages, **given)
 
     def to_dict(self) -> dict:
         """The file's layout (``from_dict(to_dict())`` gives this config back), every default written out."""
-        out = {"preset": self.preset, "seed": self.seed, "all": self.all}
+        out = {"preset": self.preset, "seed": self.seed, "all": dataclasses.asdict(self.all)}
         if self.collect is not None:
-            out["collect"] = self.collect
+            out["collect"] = dataclasses.asdict(self.collect)
         return {**out, **{s: dataclasses.asdict(block) for s, block in self.stages.items()}}
 
 

@@ -22,7 +22,7 @@ Official: a directory holding the orbax ``StandardCheckpointer`` directories ``s
 ``vae.pt`` and ``clip.pt`` (despite the suffix, not torch pickles; nothing is ever unpickled). Each holds
 an NNX ``State`` saved by orbax, so every leaf path ends in ``value`` (``blocks/modulation/value``);
 a pure-dict layout without that suffix is accepted too. ``solaris.pt`` must match our ``WorldDiT`` tree
-exactly (the official tree, ``tests/world_model/fixtures/solaris-param-tree.txt``); ``vae.pt`` and
+exactly (the official tree, ``tests/solaris_env/world_model/fixtures/solaris-param-tree.txt``); ``vae.pt`` and
 ``clip.pt`` must match the reference VAE / CLIP trees, which ``official`` maps onto our modules. All
 three trees are checked before anything is restored, and one ``ValueError`` lists every missing,
 unexpected and mis-shaped key of every file. Values are restored by orbax and cast to the config's

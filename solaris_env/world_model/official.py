@@ -2,7 +2,7 @@
 
 Both are orbax ``StandardCheckpointer`` directories holding the NNX state of the reference modules
 (``WanVAE_`` and ``CLIPModel`` of solaris-wm/solaris@0be45a8, built by ``model_loaders.py``). Their key
-trees for the solaris preset are ``tests/world_model/fixtures/{vae,clip}-param-tree.txt``. Our
+trees for the solaris preset are ``tests/solaris_env/world_model/fixtures/{vae,clip}-param-tree.txt``. Our
 ``CausalVideoVAE`` / ``ImageEncoder`` hold the same numbers under other names and a few other shapes;
 this module is the pure key mapping between the two layouts, plus loaders and a writer.
 

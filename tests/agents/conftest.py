@@ -1,6 +1,6 @@
 """Shared fixtures of the agent tests: small real envs, held-out start states, the test-preset world model.
 
-JAX's persistent compilation cache is on, as in ``tests/env`` (``SOLARIS_JAX_CACHE``, default
+JAX's persistent compilation cache is on, as in ``tests/solaris_env/conftest.py`` (``SOLARIS_JAX_CACHE``, default
 ``~/.cache/solaris_env/jax``; empty disables it): the renderer and the test model compile once per machine.
 """
 

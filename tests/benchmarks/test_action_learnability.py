@@ -39,7 +39,8 @@ def test_short_run_scores_every_variant(tmp_path):
 
 
 def test_variants_fix_both_settings_whatever_the_preset():
-    """Regression: with the tiny preset's gain of 10, an empty "official" override trained gain 10."""
+    """Every variant sets the mouse gain itself, whatever the preset's own: with the tiny preset's gain of 10, an
+    empty "official" override would train at gain 10."""
     for name, override in AL.VARIANTS.items():
         assert set(override) == {"mouse_input_gain"}, name
     assert AL.VARIANTS["official"] == {"mouse_input_gain": 1.0}

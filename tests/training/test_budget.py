@@ -1,13 +1,12 @@
-"""The wall-clock budget of ``solaris-train all`` (``training.budget``, ``training.cli.budget_settings``)."""
+"""The wall-clock budget of ``solaris-train all`` (``training.budget``; ``training.cli.budget_settings`` with the
+``all`` block: tests/training/test_stage_config.py)."""
 
-import argparse
 import json
 import time
 
 import pytest
 
 from training.budget import CLOCK_FILE, RunClock, elastic_deadline
-from training.cli import budget_settings
 
 
 def test_elastic_deadline_is_the_budget_left_after_the_reserve():
@@ -45,24 +44,3 @@ def test_run_clock_saves_in_the_background(tmp_path):
     on_disk = json.loads((tmp_path / CLOCK_FILE).read_text())["spent_s"]  # written by the thread, not by stop()
     clock.stop()
     assert on_disk > 0
-
-
-def _args(minutes):
-    return argparse.Namespace(time_budget_min=minutes)
-
-
-def test_budget_settings_from_config_and_flag():
-    cfg = {"time_budget_min": 150, "elastic_stage": "mp-causal", "reserve_min": 12}  # the `all` block
-    assert budget_settings(_args(None), cfg) == (9000.0, "mp-causal", 720.0)
-    assert budget_settings(_args(30.0), cfg) == (1800.0, "mp-causal", 720.0)  # the flag wins
-    assert budget_settings(_args(0.0), cfg)[0] is None  # 0 = no budget
-    assert budget_settings(_args(None), {}) == (None, "mp-causal", 0.0)  # no `all` block: no budget
-
-
-def test_budget_settings_reject_bad_values():
-    with pytest.raises(ValueError, match="elastic_stage"):
-        budget_settings(_args(None), {"elastic_stage": "mp-causl"})
-    with pytest.raises(ValueError, match="time budget"):
-        budget_settings(_args(-5.0), {})
-    with pytest.raises(ValueError, match="reserve_min"):
-        budget_settings(_args(None), {"reserve_min": -1})

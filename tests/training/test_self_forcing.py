@@ -73,7 +73,7 @@ def cfg():
 def batch(cfg):
     """A ``prepare_batch``-shaped dict (same keys, shapes, action padding) of random values: the frozen
     VAE / image encoder are not under test here and compiling them would dominate this file's runtime
-    (``tests/test_training_step.py`` covers ``prepare_batch`` itself)."""
+    (``tests/training/test_step.py`` covers ``prepare_batch`` itself)."""
     b, p, t_pad = 1, cfg.stream_players, padded_action_length(cfg, FRAMES)
     ks = jax.random.split(jax.random.key(0), 5)
     latent = (b, p, FRAMES, cfg.latent_height, cfg.latent_width)
