@@ -27,6 +27,7 @@ BAD_RENDER_TIME = "bad_render_time"  # renderTime not strictly increasing
 DECODE_ERROR = "decode_error"  # the video opened but a frame a segment needs could not be decoded
 INVALID_EPISODE = "invalid_episode"  # a segment was asked of an episode already skipped (not counted again)
 TOO_SHORT = "too_short"  # sampler: no segment of num_frames (+1 frame) fits the (common) window
+NOT_READY = "not_ready"  # training.latents: the video's latents are still being encoded (drawn again, not a skip)
 
 
 class EpisodeError(ValueError):

@@ -18,6 +18,13 @@ frame ``s' + 1`` is an anchor (``s' = -1`` means the clip starts at frame 0; its
 precedes the recording, is a no-op). The first-frame conditioning is made from ``image[a]`` when the
 config uses ``cond_encoding="image"`` (the tiny preset); the image-encoder context is computed from the
 anchor frame's pixels per batch (it is cheap).
+
+A stage with a deadline or a growing dataset (``solaris-train sprint``) does not wait for the whole cache:
+``LatentClips.build`` encodes what fits a short share of the stage's time (at least ``MIN_READY_EPISODES``
+episodes), then ``encode_in_background`` keeps encoding the rest and every episode the background collect adds,
+while batches are drawn from the episodes whose latents are ready (a draw that lands on one that is not is drawn
+again, like a corrupt episode). Encoding a video inside the training step instead stalled the DiT stages: on 2
+CPU cores, 5 steps in 11 minutes.
 """
 
 from __future__ import annotations
@@ -25,6 +32,7 @@ from __future__ import annotations
 import hashlib
 import logging
 import os
+import threading
 import time
 from pathlib import Path
 
@@ -39,7 +47,7 @@ from solaris_env.world_model.config import WorldModelConfig
 from solaris_env.world_model.dit import to_stream
 from solaris_env.world_model.world_model import frames_to_model
 from training.duet import DuetDataset
-from training.episodes import DECODE_ERROR, EpisodeError, SegmentMP, SegmentSP
+from training.episodes import DECODE_ERROR, NOT_READY, EpisodeError, SegmentMP, SegmentSP
 from training.latent_cache import LatentCache
 from training.samplers import draw_loaded
 
@@ -48,6 +56,8 @@ logger = logging.getLogger(__name__)
 STREAM_CHUNK_LATENTS = 32  # latent frames encoded per streaming call (k * 32 video frames)
 IMAGE_BATCH = 64  # anchor frames encoded per call
 BUILD_WORKERS = 4  # videos encoded at once when the cache is built (at most the CPU count)
+MIN_READY_EPISODES = 8  # encoded before a stage starts drawing, whatever its time (or all there are)
+BACKGROUND_IDLE_S = 2.0  # the background encoder looks for new episodes this often when it has caught up
 
 
 def vae_fingerprint(cfg: WorldModelConfig, vae_state) -> str:
@@ -128,6 +138,10 @@ class LatentClips:
             for mp4 in sorted(Path(canonical_dir).glob("*/*.mp4")):
                 st = mp4.stat()
                 self._canonical[(st.st_dev, st.st_ino)] = mp4
+        self._failed: dict[Path, str] = {}  # videos the background encoder could not encode -> why
+        self._stop = threading.Event()
+        self._background: threading.Thread | None = None
+        self._background_error: BaseException | None = None
 
     def _player_recordings(self, segment) -> list[tuple[Path, np.ndarray, int]]:
         """[(video, act_T25, start)] per player."""
@@ -138,33 +152,55 @@ class LatentClips:
         return [(episode.video, episode.act_T25, segment.start)]
 
     def latents(self, video: Path) -> np.ndarray:
+        """The video's latents; encoded now if they are not ready, unless the background encoder runs: then
+        EpisodeError(NOT_READY) (the draw is repeated), or DECODE_ERROR for a video it could not encode."""
         lat = self._latents.get(video)
         if lat is None:
+            if self._background_error is not None:
+                raise RuntimeError("the background latent encoder failed") from self._background_error
+            if video in self._failed:
+                raise EpisodeError(DECODE_ERROR, f"{video.name}: {self._failed[video]}")
+            if self._background is not None:
+                raise EpisodeError(NOT_READY, f"{video.name}: latents not encoded yet")
             lat = self._latents[video] = self._cached_or_encoded(video)
         return lat
+
+    @property
+    def num_ready(self) -> int:
+        """Videos whose latents are ready."""
+        return len(self._latents)
+
+    def pending(self, episode_ids=None) -> list[Path]:
+        """The videos of ``episode_ids`` (default: every valid episode) whose latents are not ready, in
+        episode order."""
+        ids = self.dataset.valid_ids if episode_ids is None else episode_ids
+        videos = []
+        for episode_id in ids:
+            segment = (SegmentMP(episode_id, 0, 0) if isinstance(self.dataset, DuetDataset)
+                       else SegmentSP(episode_id, 0))
+            videos += [video for video, _, _ in self._player_recordings(segment)
+                       if video not in self._latents and video not in self._failed]
+        return videos
 
     def _cached_or_encoded(self, video: Path) -> np.ndarray:
         st = video.stat()
         source = self._canonical.get((st.st_dev, st.st_ino), video)
         return self.cache.get_or_encode(source, self.encoder, self.dataset.frames.size)
 
-    def build(self, episode_ids=None, workers: int | None = None, until: float | None = None) -> int:
-        """Encode every (valid) episode's videos now; returns the number of videos encoded or found.
+    def build(self, episode_ids=None, workers: int | None = None, until: float | None = None,
+              stop: threading.Event | None = None) -> int:
+        """Encode every (valid) episode's videos now; returns the number of videos ready.
 
         ``workers`` videos are decoded and encoded at once (threads: the video decoder and XLA release the GIL,
         and one batch-1 streaming encode keeps about one CPU core busy); default: the CPU count, at most
         ``BUILD_WORKERS``. The cache files are the same whatever the number. ``until`` (epoch seconds) stops
-        starting new videos after that time; the rest are encoded when a clip first needs them (``latents``),
-        as the episodes a growing dataset adds later are.
+        starting new videos after that time, ``stop`` when it is set; the rest are encoded when a clip first
+        needs them (``latents``), or by ``encode_in_background``.
         """
         from concurrent.futures import ThreadPoolExecutor
 
         ids = self.dataset.valid_ids if episode_ids is None else episode_ids
-        videos = []
-        for episode_id in ids:
-            segment = (SegmentMP(episode_id, 0, 0) if isinstance(self.dataset, DuetDataset)
-                       else SegmentSP(episode_id, 0))
-            videos += [video for video, _, _ in self._player_recordings(segment) if video not in self._latents]
+        videos = self.pending(ids)
         workers = min(BUILD_WORKERS, os.cpu_count() or 1) if workers is None else workers
         if workers < 1:
             raise ValueError(f"workers must be >= 1, got {workers}")
@@ -172,17 +208,74 @@ class LatentClips:
         done = 0
         with ThreadPoolExecutor(workers) as pool:  # map keeps the order; results arrive as they are ready
             for start in range(0, len(videos), workers):
-                if until is not None and time.time() >= until:
-                    logger.info("latent cache: stopped at %d/%d videos (time); the rest encode on first use",
-                                done, len(videos))
+                if (until is not None and time.time() >= until) or (stop is not None and stop.is_set()):
+                    logger.info("latent cache: stopped at %d/%d videos (%s)", done, len(videos),
+                                "time" if stop is None or not stop.is_set() else "stop")
                     break
                 chunk = videos[start:start + workers]
-                for video, lat in zip(chunk, pool.map(self._cached_or_encoded, chunk)):
-                    self._latents[video] = lat
+                for video, lat in zip(chunk, pool.map(self._encode_or_fail, chunk)):
+                    if lat is not None:
+                        self._latents[video] = lat
                     done += 1
                     if done % (20 * per_episode) == 0:
                         logger.info("latent cache: %d/%d videos (%s)", done, len(videos), dict(self.cache.stats))
-        return len(self._latents)
+        return self.num_ready
+
+    def _encode_or_fail(self, video: Path) -> np.ndarray | None:
+        """The video's latents, or None after recording why it could not be encoded (``latents`` then
+        raises DECODE_ERROR for it, so a bad video is tried once, not at every draw)."""
+        try:
+            return self._cached_or_encoded(video)
+        except (EpisodeError, FileNotFoundError) as err:
+            logger.warning("latent cache: %s not encoded: %s", video.name, err)
+            self._failed[video] = str(err)
+            return None
+
+    def build_for_stage(self, deadline: float | None, share: float = 0.1) -> int:
+        """The cache before a stage draws its first batch. Without a ``deadline``: every video, now. With one:
+        the first ``MIN_READY_EPISODES`` episodes, then more until ``share`` of the time left has passed; the
+        rest are left to ``encode_in_background``."""
+        if deadline is None:
+            return self.build()
+        now = time.time()
+        self.build(self.dataset.valid_ids[:MIN_READY_EPISODES])
+        ready = self.build(until=now + share * max(0.0, deadline - now))
+        if ready == 0:
+            raise RuntimeError(f"latent cache: none of the {len(self._failed)} videos tried could be encoded "
+                               f"({sorted(set(self._failed.values()))[:3]})")
+        return ready
+
+    def encode_in_background(self, workers: int | None = None) -> None:
+        """Start a daemon thread that encodes every pending video, then every episode the dataset adds
+        (``rescan``), until ``close()``; from now on ``latents`` never encodes in the caller's thread.
+        ``workers`` default: one less than ``build``'s (a core is left to the training step), at least 1."""
+        if self._background is not None:
+            raise RuntimeError("the background encoder is already running")
+        workers = max(1, min(BUILD_WORKERS, os.cpu_count() or 1) - 1) if workers is None else workers
+
+        def run():
+            try:
+                while not self._stop.is_set():
+                    try:
+                        pending = self.pending()
+                    except RuntimeError:  # the dataset grew while we read it (a rescan in the training thread)
+                        pending = None
+                    if pending:
+                        self.build(workers=workers, stop=self._stop)
+                    else:
+                        self._stop.wait(BACKGROUND_IDLE_S)
+            except BaseException as err:  # noqa: BLE001 - raised again in the training thread by ``latents``
+                logger.exception("latent cache: the background encoder stopped")
+                self._background_error = err
+
+        self._background = threading.Thread(target=run, name="latent-cache", daemon=True)
+        self._background.start()
+
+    def close(self) -> None:
+        """Stop the background encoder (the video in flight finishes; the cache files stay consistent)."""
+        self._stop.set()
+        if self._background is not None:
+            self._background.join()
 
     def load(self, segment, num_frames: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """-> (x0 (P, F, h, w, C) f32, first frames (P, H, W, 3) uint8, actions (T, P, 25) f32)."""

@@ -371,17 +371,20 @@ def clip_stream(out: Path, data_dir: Path, cfg: WorldModelConfig, vae, encoder,
                 sc: FlowStageConfig | SelfForcingStageConfig, seed: int,
                 single_player: bool, deadline: float | None = None):
     """(LatentClips, resumable sampler, jitted batch preparation) of a DiT stage; the latent cache of the
-    stage's VAE lives in ``out/latents`` and is built (once) before training, with at most half of the time
-    to ``deadline`` (epoch seconds) when one is given: videos not encoded by then are on first use."""
+    stage's VAE lives in ``out/latents``. Without a ``deadline`` (epoch seconds) or a growing dataset it is
+    built whole before training; with either, a short share of the stage's time is spent on it and the rest is
+    encoded in the background while batches come from the ready episodes (``LatentClips.build_for_stage``).
+    The caller ``close()``s the clips when the stage ends."""
     from training.latents import latent_clips, make_prepare_latents
 
     dataset, sampler = (vpt_stream if single_player else duet_stream)(data_dir, cfg, sc.num_frames, seed,
                                                                       rescan_s=sc.rescan_s)
     clips = latent_clips(dataset, cfg, vae, Path(out) / "latents", canonical_dir=Path(data_dir) / "duet")
     t0 = time.perf_counter()
-    now = time.time()
-    n = clips.build(until=None if deadline is None else now + max(0.0, deadline - now) / 2)
+    n = clips.build_for_stage(deadline)
     logger.info("latent cache: %d videos ready in %.0f s (%s)", n, time.perf_counter() - t0, dict(clips.cache.stats))
+    if deadline is not None or sc.rescan_s:
+        clips.encode_in_background()
     return clips, sampler, make_prepare_latents(cfg, vae, encoder)
 
 
@@ -432,7 +435,10 @@ def train_flow(stage: str, out: str | Path, data_dir: str | Path, sc: FlowStageC
     def current(st) -> WorldModel:
         return WorldModel(cfg, nnx.merge(graphdef, st.final_params, st.rest), vae, encoder)
 
-    state = run_loop(spec, out, state, train_step, draw, sampler, resume, on_sample, _model_hook(on_model, current))
+    try:
+        state = run_loop(spec, out, state, train_step, draw, sampler, resume, on_sample, _model_hook(on_model, current))
+    finally:
+        clips.close()  # the background encoder, if any
     current(state).save(model_dir(out, stage))
     return model_dir(out, stage)
 
@@ -492,7 +498,10 @@ def train_self_forcing(out: str | Path, data_dir: str | Path, sc: SelfForcingSta
     def current(st) -> WorldModel:
         return WorldModel(cfg, nnx.merge(graphs.generator, st.generator.params, st.generator.rest), vae, encoder)
 
-    state = run_loop(spec, out, state, iteration, draw, sampler, resume, on_sample, _model_hook(on_model, current))
+    try:
+        state = run_loop(spec, out, state, iteration, draw, sampler, resume, on_sample, _model_hook(on_model, current))
+    finally:
+        clips.close()  # the background encoder, if any
     current(state).save(model_dir(out, "self-forcing"))
     return model_dir(out, "self-forcing")
 

@@ -10,7 +10,7 @@ import pytest
 from solaris_env.world_model.config import preset
 from solaris_env.world_model.world_model import WorldModel, frames_to_model
 from training.duet import DuetDataset
-from training.episodes import SegmentMP, SegmentSP
+from training.episodes import EpisodeError, SegmentMP, SegmentSP
 from training.latents import latent_clips, make_prepare_latents, snap_start
 from training.samplers import MultiplayerSegmentSampler
 from training.step import prepare_batch
@@ -119,3 +119,119 @@ def test_build_stops_at_its_time_limit_and_the_rest_encode_on_first_use(root, cf
     segment = SegmentMP(dataset.valid_ids[0], 8, 8)
     for a, b in zip(late.load(segment, 9), full.load(segment, 9)):  # encoded on demand, the same latents
         np.testing.assert_array_equal(a, b)
+
+
+def _gated(clips, gate):
+    """Make ``clips``' encoder wait for ``gate`` (the test decides when the background catches up)."""
+    encode = clips._cached_or_encoded
+
+    def wait_then_encode(video):
+        assert gate.wait(120)
+        return encode(video)
+
+    clips._cached_or_encoded = wait_then_encode
+
+
+def test_the_background_encoder_serves_ready_episodes_only_then_catches_up(root, cfg, modules, tmp_path):
+    import threading
+    import time
+
+    dataset = DuetDataset(root, "train", obs_size=(32, 32))
+    clips = latent_clips(dataset, cfg, modules[1], tmp_path / "bg", canonical_dir=root / "duet")
+    ready, *others = dataset.valid_ids
+    assert others and clips.build([ready], workers=1) == 2
+    gate = threading.Event()
+    _gated(clips, gate)
+    loaded = []
+    load = clips.load
+
+    def recording_load(segment, n):
+        out = load(segment, n)
+        loaded.append(segment.episode_id)  # only the draws that loaded
+        return out
+
+    clips.load = recording_load
+    clips.encode_in_background(workers=1)
+    try:
+        with pytest.raises(EpisodeError, match="not_ready"):
+            load(SegmentMP(others[0], 8, 8), 9)  # never encoded in the training thread
+        sampler = MultiplayerSegmentSampler(dataset, 9, seed=0)
+        batch = clips.next_batch(sampler, 6, 9)
+        assert batch["x0"].shape[0] == 6 and loaded == [ready] * 6  # the other draws were drawn again
+        assert sampler.step > 6 or len(dataset.valid_ids) == 1
+        gate.set()
+        until = time.time() + 120
+        while clips.pending() and time.time() < until:
+            time.sleep(0.1)
+        assert clips.pending() == [] and clips.num_ready == 2 * len(dataset.valid_ids)
+        full = latent_clips(dataset, cfg, modules[1], tmp_path / "full", canonical_dir=root / "duet")
+        for a, b in zip(load(SegmentMP(others[0], 8, 8), 9), full.load(SegmentMP(others[0], 8, 8), 9)):
+            np.testing.assert_array_equal(a, b)  # what the background wrote is what the caller would encode
+    finally:
+        gate.set()
+        clips.close()
+    assert not clips._background.is_alive()
+    with pytest.raises(RuntimeError, match="already running"):
+        clips.encode_in_background()
+
+
+def test_a_video_that_cannot_be_encoded_is_tried_once_and_its_draws_are_skipped(root, cfg, modules, tmp_path):
+    from training.episodes import DECODE_ERROR
+
+    dataset = DuetDataset(root, "train", obs_size=(32, 32))
+    clips = latent_clips(dataset, cfg, modules[1], tmp_path / "bad", canonical_dir=root / "duet")
+    bad_episode = dataset.valid_ids[-1]
+    bad = dataset.recordings(bad_episode)[0].video
+    encode, tried = clips._cached_or_encoded, []
+
+    def failing(video):
+        tried.append(video)
+        if video == bad:
+            raise EpisodeError(DECODE_ERROR, f"{video.name}: frame 3 could not be decoded")
+        return encode(video)
+
+    clips._cached_or_encoded = failing
+    videos = 2 * len(dataset.valid_ids)
+    assert clips.build(workers=1) == videos - 1
+    assert clips.pending() == [] and clips.build(workers=1) == videos - 1 and tried.count(bad) == 1
+    with pytest.raises(EpisodeError, match="decode_error: .*frame 3"):
+        clips.load(SegmentMP(bad_episode, 8, 8), 9)
+
+
+def test_a_stage_with_a_deadline_starts_from_at_least_a_few_episodes(root, cfg, modules, tmp_path):
+    import time
+
+    from training.latents import MIN_READY_EPISODES
+
+    dataset = DuetDataset(root, "train", obs_size=(32, 32))
+    assert len(dataset.valid_ids) <= MIN_READY_EPISODES
+    late = latent_clips(dataset, cfg, modules[1], tmp_path / "late", canonical_dir=root / "duet")
+    assert late.build_for_stage(deadline=time.time() - 1) == 2 * len(dataset.valid_ids)  # past it: still the few
+    broken = latent_clips(dataset, cfg, modules[1], tmp_path / "broken", canonical_dir=root / "duet")
+
+    def unreadable(video):
+        raise EpisodeError("unreadable_video", f"{video.name}: OpenCV cannot open it")
+
+    broken._cached_or_encoded = unreadable
+    with pytest.raises(RuntimeError, match="none of the .* videos tried could be encoded"):
+        broken.build_for_stage(deadline=time.time() + 60)
+
+
+def test_an_error_in_the_background_encoder_is_raised_in_the_training_thread(root, cfg, modules, tmp_path):
+    import time
+
+    dataset = DuetDataset(root, "train", obs_size=(32, 32))
+    clips = latent_clips(dataset, cfg, modules[1], tmp_path / "err", canonical_dir=root / "duet")
+
+    def bug(video):
+        raise TypeError("a bug in the encoder")
+
+    clips._cached_or_encoded = bug
+    clips.encode_in_background(workers=1)
+    until = time.time() + 60
+    while clips._background.is_alive() and time.time() < until:
+        time.sleep(0.05)
+    with pytest.raises(RuntimeError, match="background latent encoder failed") as info:
+        clips.load(SegmentMP(dataset.valid_ids[0], 8, 8), 9)
+    assert isinstance(info.value.__cause__, TypeError)
+    clips.close()
