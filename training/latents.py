@@ -264,7 +264,7 @@ class LatentClips:
                         self.build(workers=workers, stop=self._stop)
                     else:
                         self._stop.wait(BACKGROUND_IDLE_S)
-            except BaseException as err:  # noqa: BLE001 - raised again in the training thread by ``latents``
+            except BaseException as err:  # raised again in the training thread by ``latents``
                 logger.exception("latent cache: the background encoder stopped")
                 self._background_error = err
 

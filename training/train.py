@@ -541,7 +541,7 @@ def train_refiner(out: str | Path, data_dir: str | Path, sc: RefinerStageConfig,
         i = sampler.next_indices()
         return {key: jnp.asarray(v[i]) for key, v in data.items()}
 
-    n, t, h, w, _ = data["obs"].shape
+    _, t, h, w, _ = data["obs"].shape
     spec = LoopSpec("refiner", steps, sc.log_every, sc.ckpt_every, 0,  # 0: the refiner writes no samples
                     tokens_per_step=sc.batch_size * t * h * w, lr=sc.lr, fsdp=fsdp, deadline=deadline)
     dit, vae, encoder = model.modules()
