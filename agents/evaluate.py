@@ -14,8 +14,8 @@ states (``agents.common.make_start_states``, seeds ``--start-seed`` + i) in
 Reported per policy: mean return with a 95 % bootstrap CI for dream, real and real_judge, and the gap
 dream - real. Across policies: Pearson and Spearman correlation and MMRV (``agents.stats``) of dream vs real;
 real_judge vs real isolates the judges' error, dream vs real_judge the world model's. Goal: Spearman >= 0.8.
-Writes ``--out`` (default ``benchmarks/results/policy_eval.json``) and a scatter plot next to it (``.png``),
-both atomically. Episodes run one after another (a 2-core CPU is busy with one model call).
+Writes ``--out`` (default ``benchmarks/results/policy_eval_<task>.json``) and a scatter plot next to it
+(``.png``), both atomically. Episodes run one after another (a 2-core CPU is busy with one model call).
 """
 
 from __future__ import annotations
@@ -41,15 +41,21 @@ from agents.rollouts import run_episode
 from agents.stats import mmrv, pearson, spearman, summarize
 from solaris_env.paths import portable_path, portable_text
 
-DEFAULT_POLICIES = ["noop", "random", "spin:15", "seeker:0", "seeker:0.25", "seeker:0.5", "seeker:0.75"]
+# The scripted policies of each task, from useless to good (the PPO checkpoints come on top): the face task's
+# seekers turn toward the partner, the approach task's also walk to it once it is centred.
+DEFAULT_POLICIES = {
+    "face_partner": ["noop", "random", "spin:15", "seeker:0", "seeker:0.25", "seeker:0.5", "seeker:0.75"],
+    "approach_partner": ["noop", "random", "spin:15", "seeker:0", "seeker-walk:0", "seeker-walk:0.25",
+                         "seeker-walk:0.5", "seeker-walk:0.75"],
+}
 SPEARMAN_GOAL = 0.8
 
 
 @dataclass
 class Args:
     task: str = arg("face_partner", "judged task (solaris_env.tasks.JUDGED_TASKS)")
-    # arg() gives list defaults a default_factory (ruff's RUF009 cannot see through it)
-    policies: list[str] = arg(DEFAULT_POLICIES, "policy specs (agents.policies.make_policy)")  # noqa: RUF009
+    policies: list[str] | None = arg(None, "policy specs (agents.policies.make_policy); default: the task's "
+                                           "DEFAULT_POLICIES")
     ppo_checkpoints: list[str] = arg([], "PPO checkpoints (.zip) or dirs of step_*.zip")  # noqa: RUF009
     episodes: int = arg(16, "episodes per policy and env (the same start states for all)")
     max_steps: int = arg(50, "episode length in env steps")
@@ -61,13 +67,21 @@ class Args:
     preset: str | None = arg(None, "a RANDOM-INIT world-model preset instead (tiny | test): smoke tests only")
     judge_dir: str | None = arg(None, "judge probe weights (default: the shipped solaris_env/assets/judges)")
     resamples: int = arg(10_000, "bootstrap resamples per confidence interval")
-    out: str = arg(str(RESULTS_DIR / "policy_eval.json"), "results JSON (the plot is written next to it as .png)")
+    out: str | None = arg(None, "results JSON (the plot is written next to it as .png); default: "
+                                "benchmarks/results/policy_eval_<task>.json")
 
     def __post_init__(self):
         from solaris_env.tasks import JUDGED_TASKS
 
         if self.task not in JUDGED_TASKS:
             raise ValueError(f"task must be one of {sorted(JUDGED_TASKS)}, got {self.task!r}")
+        if self.policies is None:
+            if self.task not in DEFAULT_POLICIES:
+                raise ValueError(f"task {self.task!r} has no default policies ({sorted(DEFAULT_POLICIES)} have); "
+                                 "give --policies")
+            self.policies = list(DEFAULT_POLICIES[self.task])
+        if self.out is None:
+            self.out = str(RESULTS_DIR / f"policy_eval_{self.task}.json")
         if self.episodes < 1 or self.max_steps < 1:
             raise ValueError(f"episodes and max_steps must be >= 1, got {self.episodes}, {self.max_steps}")
 

@@ -4,6 +4,7 @@ real engine and in the dream writes checkpoints that load and act; evaluate.py a
 
 import json
 import shutil
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -146,6 +147,15 @@ def test_script_arguments_are_checked():
     args = parse_args(ppo_dream.Args, ["--preset", "test", "--obs-size", "none", "--seed", "3"])
     assert args.preset == "test" and args.obs_size is None and args.seed == 3 and args.checkpoint is None
     assert parse_args(evaluate.Args, ["--policies", "noop", "spin:5"]).policies == ["noop", "spin:5"]
+    for task in ("face_partner", "approach_partner"):  # each task's scripted policies and its own results file
+        args = parse_args(evaluate.Args, ["--task", task])
+        assert args.policies == evaluate.DEFAULT_POLICIES[task] and len(set(args.policies)) >= 7
+        assert Path(args.out).name == f"policy_eval_{task}.json"
+    assert any(p.startswith("seeker-walk") for p in evaluate.DEFAULT_POLICIES["approach_partner"])
+    undefaulted = sorted(set(JUDGED_TASKS) - set(evaluate.DEFAULT_POLICIES))
+    if undefaulted:
+        with pytest.raises(ValueError, match="no default policies"):
+            parse_args(evaluate.Args, ["--task", undefaulted[0]])
     with pytest.raises(ValueError, match="--dream-ppo and --real-ppo"):
         parse_args(transfer.Args, [])
     with pytest.raises(FileNotFoundError, match="neither"):
