@@ -1,12 +1,11 @@
-"""``solaris_env.dream_env`` (DreamParallelEnv): PettingZoo conformance (the API test with a task and with an agent
-that terminates early; the seed test), the shipped default model and the missing-default error, spaces shared with the
+"""``solaris_env.dream_env`` (DreamParallelEnv; its PettingZoo conformance is in ``test_conformance.py``): the
+shipped default model and the missing-default error, spaces shared with the
 real env, start states (bundled scenes, given frames, engine states), tasks and per-agent terminations, rendering,
 truncation, determinism (in one process and across two), errors, and the ``parallel_env`` factory. Every env runs on
 the session's shared test-preset model (``conftest.py``)."""
 
 import numpy as np
 import pytest
-from pettingzoo.test import parallel_api_test, parallel_seed_test
 
 import solaris_env
 from solaris_env import DreamParallelEnv, RealParallelEnv, dream_env
@@ -25,20 +24,6 @@ from solaris_env.world_model.world_model import WorldModel
 
 def solid_frames(env, values):
     return {a: np.full((env.height, env.width, 3), v, np.uint8) for a, v in zip(env.possible_agents, values)}
-
-
-@pytest.mark.parametrize("terminating", [False, True], ids=["1000_cycles_with_a_task", "a_terminating_agent"])
-def test_parallel_api_test(dream, terminate_after, terminating):
-    """PettingZoo's API test: 1000 cycles (two 500-step episodes) with a task scoring every step, and short episodes
-    in which Alpha terminates after 5 steps while Bravo plays on to the truncation."""
-    if terminating:
-        parallel_api_test(dream(max_steps=20, task=terminate_after(who=0, steps=5)), num_cycles=100)
-    else:
-        parallel_api_test(dream(max_steps=500, task="visual_novelty"), num_cycles=1000)
-
-
-def test_parallel_seed_test(model):
-    parallel_seed_test(lambda: DreamParallelEnv(model=model, max_steps=20))
 
 
 def test_shipped_default_model_loads_and_is_small():

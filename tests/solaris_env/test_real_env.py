@@ -1,11 +1,9 @@
-"""``solaris_env.real_env`` (RealParallelEnv): PettingZoo conformance (the API test with a task and with an agent that
-terminates early; the seed test), spaces, determinism, engine-state snapshots, ``ticks_per_step`` (one step plays k
+"""``solaris_env.real_env`` (RealParallelEnv; its PettingZoo conformance is in ``test_conformance.py``): spaces, determinism, engine-state snapshots, ``ticks_per_step`` (one step plays k
 engine ticks as the dream env does: the whole action on the first tick, then only the held movement keys, the camera
 turn spread over the ticks; every tick rendered, the task scored once), truncation and errors."""
 
 import numpy as np
 import pytest
-from pettingzoo.test import parallel_api_test, parallel_seed_test
 
 from solaris_env.real_env import EngineState
 from solaris_env.spaces import noop, step_ticks
@@ -16,20 +14,6 @@ def act(dyaw: float = 0.0, **keys) -> dict:
     a["camera"] = np.array([0.0, dyaw], np.float32)
     a.update(keys)
     return a
-
-
-@pytest.mark.parametrize("terminating", [False, True], ids=["1000_cycles_with_a_task", "a_terminating_agent"])
-def test_parallel_api_test(real, terminate_after, terminating):
-    """PettingZoo's API test: 1000 cycles (two 500-step episodes) with a task scoring every step, and short episodes
-    in which Alpha terminates after 5 steps while Bravo plays on to the truncation."""
-    if terminating:
-        parallel_api_test(real(max_steps=20, task=terminate_after(who=0, steps=5)), num_cycles=100)
-    else:
-        parallel_api_test(real(max_steps=500, task="visual_novelty"), num_cycles=1000)
-
-
-def test_parallel_seed_test(real):
-    parallel_seed_test(lambda: real(max_steps=20))
 
 
 def test_spaces_are_built_once_and_match_the_frames(real):
