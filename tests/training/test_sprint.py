@@ -188,6 +188,7 @@ def test_sprint_trains_while_the_engine_records_and_keeps_its_time(sprints):
     for lineage in (a, b):
         (stage,) = [s for s in lineage["stages"] if s["status"] == "ran"]  # sprint-test.json: mp-causal only
         assert stage["stage"] == "mp-causal" and stage["steps"] >= 1 and stage["share_s"] > 0
+        assert 0 < stage["first_step_s"] <= stage["wall_s"]  # from the step hook, whatever the stage's log_every
         # within the budget (the final export follows within reserve_s), unless this machine took longer than the
         # stage's whole share to set up and take its first step (the cold JIT compile): then that step was its last
         overran_on_first_step = stage["steps"] == 1 and stage["first_step_s"] >= stage["share_s"]
