@@ -1,9 +1,9 @@
 """Dream fidelity: does the dream simulate? Paired rollouts, real engine vs dream, same start, same actions.
 
     .venv/bin/python -m benchmarks.dream_fidelity                                  # shipped model, ~10 min
-    .venv/bin/python -m benchmarks.dream_fidelity --model default --model default:no-refiner
+    .venv/bin/python -m benchmarks.dream_fidelity --model default --model runs/x/self-forcing/model
     .venv/bin/python -m benchmarks.dream_fidelity --quick --programs forward yaw_right_15 random
-    .venv/bin/python -m benchmarks.dream_fidelity --model runs/x/refiner/model --out runs/x/fidelity.json
+    .venv/bin/python -m benchmarks.dream_fidelity --model runs/x/self-forcing/model --out runs/x/fidelity.json
 
 From each engine start state (``make_states``: fresh seeds from 700000, every flat surface and normal
 worlds, the partner in view or the learner turned away) the real engine (``RealParallelEnv`` with
@@ -739,42 +739,25 @@ def dream_rollout(env, rollout: Rollout) -> np.ndarray:
 # =============================================================================================
 
 
-def parse_model_spec(spec: str) -> tuple[str, bool]:
-    """``"default"``, ``"PATH"`` or ``"preset:NAME"`` (random init, smoke runs), optionally ``":no-refiner"``
-    -> (base, refiner off?)."""
-    suffix = ":no-refiner"
-    return (spec[: -len(suffix)], True) if spec.endswith(suffix) else (spec, False)
-
-
 def model_label(spec: str) -> str:
-    """The model's name in the results: ``shipped default``, a repository-relative path, never absolute."""
-    base, off = parse_model_spec(spec)
-    if base == "default":
-        name = "shipped default"
-    elif base.startswith("preset:"):
-        name = f"preset {base.split(':', 1)[1]} (random init)"
-    else:
-        name = portable_path(base, parts=3)  # outside the repository: its last three components only
-    return name + (", refiner off" if off else "")
+    """The name in the results of a model spec (``"default"``, ``"PATH"`` or ``"preset:NAME"``: random init,
+    smoke runs): ``shipped default``, a repository-relative path, never absolute."""
+    if spec == "default":
+        return "shipped default"
+    if spec.startswith("preset:"):
+        return f"preset {spec.split(':', 1)[1]} (random init)"
+    return portable_path(spec, parts=3)  # outside the repository: its last three components only
 
 
 def load_model(spec: str):
-    """The world model of a spec (``parse_model_spec``); refiner off = the same weights with
-    ``VAEConfig.refiner`` reset to the default ``RefinerConfig()`` (``training.refine.with_refiner(model, None)``)."""
+    """The world model of a spec (``model_label``)."""
     from solaris_env.dream_env import build_model
 
-    base, off = parse_model_spec(spec)
-    if base == "default":
-        model = build_model(None, None, num_players=2)
-    elif base.startswith("preset:"):
-        model = build_model(None, base.split(":", 1)[1], num_players=2)
-    else:
-        model = build_model(base, None, num_players=2)
-    if off:
-        from training.refine import with_refiner
-
-        model = with_refiner(model, None)
-    return model
+    if spec == "default":
+        return build_model(None, None, num_players=2)
+    if spec.startswith("preset:"):
+        return build_model(None, spec.split(":", 1)[1], num_players=2)
+    return build_model(spec, None, num_players=2)
 
 
 # =============================================================================================
@@ -1163,7 +1146,6 @@ def run(model_specs: Sequence[str], program_names: Sequence[str], setup: Setup, 
         t0 = time.perf_counter()
         scored = [score(r, caches[id(r)], d, judge, features) for r, d in zip(rollouts, dreams)]
         results[label] = tables(scored, programs)
-        results[label]["refiner"] = bool(model.config.vae.refiner.enabled)
         timing[f"dream_rollouts_s[{label}]"] = round(dream_s, 1)
         timing[f"dream_scoring_s[{label}]"] = round(time.perf_counter() - t0, 1)
         log(f"dream {label}: {timing[f'dream_rollouts_s[{label}]']} s rollouts, "
@@ -1172,8 +1154,7 @@ def run(model_specs: Sequence[str], program_names: Sequence[str], setup: Setup, 
     result = {
         "benchmark": "dream_fidelity",
         "setup": {
-            "models": [{"spec": spec, "name": model_label(spec), "refiner": results[model_label(spec)]["refiner"]}
-                       for spec in model_specs],
+            "models": [{"spec": spec, "name": model_label(spec)} for spec in model_specs],
             "frame_size": [height, width], "frames_per_step": k, "quick": quick,
             "start_seed": setup.start_seed, "per_world": setup.per_world, "per_program": setup.per_program,
             "per_long_program": setup.per_long_program,
@@ -1228,7 +1209,7 @@ def print_tables(result: dict) -> None:
     ratio, PSNR, partner agreement, FD), then per surface."""
     windows = result["setup"]["windows"]
     for name, res in result["results"].items():
-        print(f"\n== {name} (refiner {'on' if res['refiner'] else 'off'}) ==")
+        print(f"\n== {name} ==")
         wh = " ".join(f"{w:>6s}" for w in windows)
         print(f"{'':16s} {'view-change ratio':^{7 * len(windows)}s}| {'direction agreement':^{7 * len(windows)}s}| "
               f"{'all steps':^50s}")
@@ -1258,9 +1239,7 @@ def main(argv: list[str] | None = None) -> dict:
     p = argparse.ArgumentParser(prog="python -m benchmarks.dream_fidelity", description=__doc__.split("\n\n")[0])
     p.add_argument("--model", action="append", default=None,
                    help="a model: 'default' (the shipped one), a checkpoint directory, or 'preset:NAME' (random "
-                        "init, smoke runs); ':no-refiner' appended = the same model with its temporal refiner "
-                        "off. Repeat to compare models on the same engine rollouts (default: default)")
-    p.add_argument("--no-refiner", action="store_true", help="run every --model with its refiner off")
+                        "init, smoke runs). Repeat to compare models on the same engine rollouts (default: default)")
     p.add_argument("--programs", nargs="+", default=list(PROGRAMS), metavar="NAME",
                    help=f"action programs (default: all): {' '.join(PROGRAMS)}")
     p.add_argument("--quick", action="store_true",
@@ -1272,8 +1251,6 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--out", default=str(RESULTS), help="the JSON; the .png and .mp4 go next to it")
     args = p.parse_args(argv)
     specs = args.model or ["default"]
-    if args.no_refiner:
-        specs = [s if s.endswith(":no-refiner") else s + ":no-refiner" for s in specs]
     setup = QUICK if args.quick else Setup()
     setup = Setup(setup.per_world, args.per_program or setup.per_program, setup.per_long_program, args.steps,
                   args.start_seed)

@@ -92,7 +92,7 @@ def count_flops(model, state, actions, state1, x0_1) -> dict:
     params = model.step_params
     flops = {
         "denoise": xla_flops(jax.jit(unrolled.denoise), params, state, actions),
-        "decode": state.num_worlds * xla_flops(jax.jit(programs.decode), params, state1, x0_1, actions[:1]),
+        "decode": state.num_worlds * xla_flops(jax.jit(programs.decode), params, state1, x0_1),
     }
     flops["step"] = sum(flops.values())
     flops["first_pass"] = xla_flops(jax.jit(programs.first_pass), params, state, actions)  # part of denoise
@@ -118,7 +118,7 @@ def bench_batch(model, state1, batch: int, rounds: int, seed: int) -> dict:
     for _ in range(3):  # compile, then let the thread pools and allocator settle
         x0 = jax.block_until_ready(denoise(params, state, actions))[0]
         jax.block_until_ready(first_pass(params, state, actions))
-        jax.block_until_ready(decode(params, state, x0, actions))
+        jax.block_until_ready(decode(params, state, x0))
     one = lambda a: a[:1]
     flops = count_flops(model, state, actions, jax.tree.map(one, state), x0[:1])
     looped = xla_flops(jax.jit(programs.step), params, state, actions)
@@ -149,7 +149,7 @@ def bench_batch(model, state1, batch: int, rounds: int, seed: int) -> dict:
     for _ in range(rounds):
         times.append(timed(env_step))
         part_times["denoise"].append(timed(lambda: jax.block_until_ready(denoise(params, state, actions))))
-        part_times["decode"].append(timed(lambda: jax.block_until_ready(decode(params, state, x0, actions))))
+        part_times["decode"].append(timed(lambda: jax.block_until_ready(decode(params, state, x0))))
         part_times["first_pass"].append(timed(lambda: jax.block_until_ready(first_pass(params, state, actions))))
     parts = {name: statistics.median(ts) for name, ts in part_times.items()}
     step_s = statistics.median(times)

@@ -29,7 +29,7 @@ def test_no_committed_result_asset_or_doc_names_an_absolute_path():
 
 
 def test_the_scan_catches_what_it_is_for():
-    for text in ('"model": "/work/runs/all15/refiner/model"', "--data /home/me/data", "`/tmp/x`", "(/root/a)"):
+    for text in ('"model": "/work/runs/all15/self-forcing/model"', "--data /home/me/data", "`/tmp/x`", "(/root/a)"):
         assert ABSOLUTE.search(text), text
     for text in ("runs/tmp/x", "http://host/home/page", "~/work/x", "$HOME/work", "/proc/self/clear_refs"):
         assert not ABSOLUTE.search(text), text

@@ -1,10 +1,10 @@
 """``solaris-train``: the training pipeline as commands.
 
-    solaris-train all --preset tiny --data data/tiny --out runs/tiny       # collect, VAE, stages 1-4, refiner
+    solaris-train all --preset tiny --data data/tiny --out runs/tiny       # collect, VAE, stages 1-4
     solaris-train vae --preset tiny --data data/tiny --out runs/tiny
     solaris-train vae-decoder --preset tiny --data data/tiny --out runs/tiny   # decoder on long clips
-    solaris-train sp | mp-bidirectional | mp-causal | self-forcing | refiner --data ... --out ...
-    solaris-train install runs/tiny/refiner/model                         # -> solaris_env/assets/default
+    solaris-train sp | mp-bidirectional | mp-causal | self-forcing --data ... --out ...
+    solaris-train install runs/tiny/self-forcing/model                    # -> solaris_env/assets/default
     solaris-train sprint --preset tiny --init default --out OUT --budget-min 8.5   # training/sprint.py
 
 Each stage reads the previous stage's ``OUT/<stage>/model`` and resumes from its own latest checkpoint
@@ -149,8 +149,8 @@ def build_parser() -> argparse.ArgumentParser:
         common(p)
         p.add_argument("--steps", type=int, default=None, help="number of updates (default: the stage config's)")
         p.set_defaults(func=cmd_stage)
-    a = sub.add_parser("all", help="collect data, then the VAE, stages 1-4 and the refiner in order (finished stages, "
-                                   "those with a model/, are skipped; an unfinished one resumes)")
+    a = sub.add_parser("all", help="collect data, then the VAE and stages 1-4 in order (finished stages, those with "
+                                   "a model/, are skipped; an unfinished one resumes)")
     common(a)
     a.add_argument("--time-budget-min", type=float, default=None,
                    help="wall-clock budget of the whole run (default: the config's all.time_budget_min; 0 = none): "
@@ -169,7 +169,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="'default' (the shipped model) or a model directory to continue; default: from scratch")
     s.add_argument("--data", default=None, help="dataset root the engine records into and training reads "
                                                 "(default: WORK/data; episodes already there are used at once)")
-    s.add_argument("--work", default=None, help="stage runs, latent cache, rollouts (default: a temporary "
+    s.add_argument("--work", default=None, help="stage runs, latent cache (default: a temporary "
                                                 "directory, removed at the end)")
     s.set_defaults(func=cmd_sprint)
     w = sub.add_parser("with-decoder", help="a model with the VAE decoder of a vae-decoder stage (same encoder)")

@@ -11,12 +11,10 @@ On held-out Duet episodes (``DATA/duet/test``), from each segment's first frame 
 (c) collapse: a ``long_steps`` rollout (default 200) with PSNR and mean/std of the pixels over time
     (a collapsing model drifts to a flat or saturated image);
 next to both, the VAE's reconstruction of the ground truth (its encode then decode, i.e. a DiT that predicted
-every latent exactly: the ceiling of a model without the temporal refiner), and the teacher-forced rollout
-(each step predicted from the true past latents: its gap to (a) is the drift, its gap to the ceiling the
-per-step error); for a model with the temporal refiner (``VAEConfig.refiner``) also the same rollout without
-it. PSNR is the mean over frames of each frame's PSNR (the criterion); next to it, the PSNR of the mean squared
-error over all frames; plus a contact sheet (generated over ground truth, both players, 64 steps) and
-``eval.json``.
+every latent exactly: the model's ceiling), and the teacher-forced rollout (each step predicted from the true
+past latents: its gap to (a) is the drift, its gap to the ceiling the per-step error). PSNR is the mean over
+frames of each frame's PSNR (the criterion); next to it, the PSNR of the mean squared error over all frames;
+plus a contact sheet (generated over ground truth, both players, 64 steps) and ``eval.json``.
 """
 
 from __future__ import annotations
@@ -97,12 +95,6 @@ def evaluate(model_dir: str | Path, data_dir: str | Path, out_dir: str | Path, n
         "psnr_teacher_forced_by_step_db": by_step(gen_teacher),
         "psnr_of_mean_mse_model_db": mse_db(gen), "psnr_of_mean_mse_copy_last_frame_db": mse_db(copy),
     }
-    if cfg.vae.refiner.enabled:
-        from training.refine import with_refiner
-        plain = rollout(with_refiner(model, None), obs, act, seed)
-        result["rollout"].update(psnr_model_without_refiner_db=float(score(plain).mean()),
-                                 psnr_model_without_refiner_by_step_db=by_step(plain),
-                                 psnr_of_mean_mse_model_without_refiner_db=mse_db(plain))
     r = result["rollout"]
     r["beats_copy_last_frame"] = r["psnr_model_db"] > r["psnr_copy_last_frame_db"]
     r["follows_actions_per_player"] = [a > z for a, z in zip(r["psnr_model_per_player_db"],

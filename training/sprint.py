@@ -16,13 +16,13 @@ One command for a borrowed accelerator (docs/training.md, "GPU sprint"): whateve
   stage-config key ``rescan_s``): every ``rescan_s`` seconds the episodes completed since join the sampler; the
   single-player stage reads each bot's view of the Duet episodes instead of a VPT export. The draws depend on
   when episodes arrive: a sprint is neither resumable nor bit-for-bit repeatable, unlike ``solaris-train all``.
-* **Stages and time.** From scratch: the VAE, the VAE decoder, stages 1-3, Self Forcing and the refiner
+* **Stages and time.** From scratch: the VAE, the VAE decoder, stages 1-3 and Self Forcing
   (``training.train``'s functions, ``train.call_stage``) with the config's ``fractions``; from a
   model (``--init``, which has its VAE): the DiT stages with ``fractions_from_init``. A stage is
   open-ended and stops at its deadline (``LoopSpec.deadline``). When a stage is about to start, the time
   left (the budget's end - now - ``reserve_s``, kept for the final export) is planned over it and the
   stages after it (``plan_shares``): each costs its ``overhead_s`` (loading, JIT compiles, the latent
-  cache, the refiner's rollouts, the VAE's statistics, the save; per device kind) plus a share of the rest
+  cache, the VAE's statistics, the save; per device kind) plus a share of the rest
   by fraction; while the overheads and ``min_train_s`` each do not fit, the stage with the smallest
   fraction is dropped. Once stages have run, the overheads are scaled by how those compared with theirs
   (the mean of time-to-first-step / ``overhead_s``, within 0.5-4), so the plan adapts to the machine. A
@@ -437,7 +437,7 @@ class SprintArgs:
     init: str | None = None  # "default", a model directory, or None (from scratch)
     data: Path | None = None  # default: WORK/data
     config: Path | None = None  # default: training/configs/sprint-<preset>.json
-    work: Path | None = None  # stage runs, latents, rollouts; default: a temporary directory, removed after
+    work: Path | None = None  # stage runs, latents; default: a temporary directory, removed after
     started: float | None = None  # epoch seconds the budget counts from (the CLI: the process's start); None: now
 
     def command(self) -> list[str]:
@@ -632,7 +632,7 @@ class Sprint:
         from training.metrics import read_metrics
         from training.train import call_stage, stage_dir
 
-        shutil.rmtree(stage_dir(self.run_dir, stage), ignore_errors=True)  # no stale checkpoints or rollouts
+        shutil.rmtree(stage_dir(self.run_dir, stage), ignore_errors=True)  # no stale checkpoints
         exportable = STAGES.index(stage) >= STAGES.index(self.cfg.export_from)
         t_start, n_streams = time.time(), len(STREAMS)
         beat, first_step_at = [t_start], []

@@ -21,7 +21,7 @@ from pathlib import Path
 from training.config_files import read_json_config
 
 CONFIG_DIR = Path(__file__).parent / "configs"
-STAGES = ("vae", "vae-decoder", "sp", "mp-bidirectional", "mp-causal", "self-forcing", "refiner")  # ``all``, in order
+STAGES = ("vae", "vae-decoder", "sp", "mp-bidirectional", "mp-causal", "self-forcing")  # ``all``, in order
 EXTRA_STAGES = ("mp-rollout",)  # not part of ``all``: run by name
 ELASTIC_STAGES = ("sp", "mp-bidirectional", "mp-causal")  # may end early to keep ``all`` within its time budget
 COLLECT_WORLDS = ("flat", "normal", "mixed")  # ``solaris-engine collect --world``
@@ -170,29 +170,6 @@ class SelfForcingStageConfig(StageConfig):
 
 
 @dataclass(frozen=True, kw_only=True)
-class RefinerLayout(_Block):
-    """The refiner block's network (``RefinerConfig``; ``actions``: conditioned on the actions)."""
-
-    width: int = _field(low=1)
-    pool: int = _field(low=1)
-    actions: bool = _field()
-    camera_shift: tuple[float, float] = _field((0.0, 0.0))
-
-
-@dataclass(frozen=True, kw_only=True)
-class RefinerStageConfig(StageConfig):
-    """``refiner``: the temporal refiner trained on the rollouts of ``init_from``'s model (``train.train_refiner``,
-    ``training.refine``: ``rollout_parts`` files of ``segments_per_part`` segments of ``num_frames`` frames)."""
-
-    lr: float = _field(above=0)
-    rollout_parts: int = _field(low=1)
-    segments_per_part: int = _field(low=1)
-    refiner: RefinerLayout = _field()  # noqa: RUF009  (a field(), no default)
-    init_from: str = _field("self-forcing", choices=tuple(s for s in STAGES + EXTRA_STAGES if s != "refiner"))
-    loss: str = _field("mse", choices=("mse", "log_mse"))  # training.refine.LOSSES
-
-
-@dataclass(frozen=True, kw_only=True)
 class CollectConfig(_Block):
     """The ``collect`` block: the training data as ``solaris-engine collect`` records it
     (``training.collect.collect_argv``; ``solaris-train all``, the sprint's background collect). ``instances``:
@@ -222,7 +199,7 @@ class AllConfig(_Block):
 STAGE_CONFIGS: dict[str, type[StageConfig]] = {
     "vae": VAEStageConfig, "vae-decoder": VAEDecoderStageConfig, "sp": FlowStageConfig,
     "mp-bidirectional": FlowStageConfig, "mp-causal": FlowStageConfig, "mp-rollout": FlowStageConfig,
-    "self-forcing": SelfForcingStageConfig, "refiner": RefinerStageConfig}
+    "self-forcing": SelfForcingStageConfig}
 
 
 @dataclass(frozen=True)

@@ -5,9 +5,7 @@
       sp/                model/ (stage 1: bidirectional, one player, on the VPT-layout export)
       mp-bidirectional/  model/ (stage 2: bidirectional, both players, player embedding learned)
       mp-causal/         model/ (stage 3: block-causal sliding window, Diffusion Forcing)
-      self-forcing/      model/ (stage 4: Checkpointed Self Forcing with DMD)
-      refiner/           model/ (ours: stage 4's model + the temporal refiner trained on its rollouts; the final
-                         model), rollouts/ (the rollouts it trains on)
+      self-forcing/      model/ (stage 4: Checkpointed Self Forcing with DMD; the final model)
     each stage dir also holds checkpoints/ (orbax: train state + data-sampler state), metrics.jsonl and
     samples/ (periodic generated-vs-ground-truth videos of both players).
 
@@ -51,7 +49,6 @@ from training.samplers import (
 )
 from training.stage_config import (
     FlowStageConfig,
-    RefinerStageConfig,
     SelfForcingStageConfig,
     TrainingConfig,
     VAEDecoderStageConfig,
@@ -507,56 +504,6 @@ def train_self_forcing(out: str | Path, data_dir: str | Path, sc: SelfForcingSta
 
 
 # ---------------------------------------------------------------------------------------------
-# Ours: the temporal refiner after the decoder (training/refine.py)
-# ---------------------------------------------------------------------------------------------
-
-
-def train_refiner(out: str | Path, data_dir: str | Path, sc: RefinerStageConfig, seed: int = 0,
-                  steps: int | None = None, resume: bool = True, fsdp: bool = False,
-                  deadline: float | None = None, on_model: Callable | None = None) -> Path:
-    """The refiner of ``OUT/<init_from>/model`` (default self-forcing), trained on that model's rollouts of
-    the training episodes (``training.refine``); the model with it -> ``OUT/refiner/model``. ``deadline`` and
-    ``on_model`` as ``train_flow``'s."""
-    from solaris_env.world_model.config import RefinerConfig
-    from training import refine as R
-
-    out, data_dir = Path(out), Path(data_dir)
-    steps = steps or sc.steps
-    base = WorldModel.load(model_dir(out, sc.init_from))
-    r = sc.refiner
-    refiner_cfg = RefinerConfig(width=r.width, pool=r.pool,
-                                action_dim=base.config.action.action_dim if r.actions else 0,
-                                camera_shift=r.camera_shift)
-    paths = R.make_rollouts(R.with_refiner(base, None), data_dir, stage_dir(out, "refiner") / "rollouts",
-                            sc.rollout_parts, sc.segments_per_part, sc.num_frames, seed)
-    data = R.load_rollouts(paths)
-    model = R.with_refiner(base, refiner_cfg, seed)
-    del base
-    refiner = model.modules()[1].refiner
-    tx = make_optimizer(sc.lr)
-    graphdef, state = TrainState.create(refiner, tx, rng=seed)
-    sampler = R.RolloutSampler(len(data["obs"]), local_batch_size(sc.batch_size), seed)
-
-    def draw():
-        i = sampler.next_indices()
-        return {key: jnp.asarray(v[i]) for key, v in data.items()}
-
-    _, t, h, w, _ = data["obs"].shape
-    spec = LoopSpec("refiner", steps, sc.log_every, sc.ckpt_every, 0,  # 0: the refiner writes no samples
-                    tokens_per_step=sc.batch_size * t * h * w, lr=sc.lr, fsdp=fsdp, deadline=deadline)
-    dit, vae, encoder = model.modules()
-
-    def current(st) -> WorldModel:
-        vae.refiner = nnx.merge(graphdef, st.params, st.rest)
-        return WorldModel(model.config, dit, vae, encoder)
-
-    state = run_loop(spec, out, state, R.make_refiner_step(graphdef, tx, sc.loss), draw, sampler,
-                     resume, on_step=_model_hook(on_model, current))
-    current(state).save(model_dir(out, "refiner"))
-    return model_dir(out, "refiner")
-
-
-# ---------------------------------------------------------------------------------------------
 # Small file helpers
 # ---------------------------------------------------------------------------------------------
 
@@ -574,9 +521,7 @@ def call_stage(stage: str, out, data, config: TrainingConfig, **kw) -> Path:
         return train_vae_decoder(out, data, config.preset, sc, **kw)
     if stage in FLOW_STAGES:
         return train_flow(stage, out, data, sc, **kw)
-    if stage == "self-forcing":
-        return train_self_forcing(out, data, sc, **kw)
-    return train_refiner(out, data, sc, **kw)
+    return train_self_forcing(out, data, sc, **kw)
 
 
 def _log_json(path: Path, obj) -> None:

@@ -18,6 +18,13 @@ reader never sees a half-written checkpoint. Loading builds the networks abstrac
 config (``nnx.eval_shape``: no initialisation compute), checks every key, shape and dtype, and raises
 ONE ``ValueError`` listing all missing, unexpected and mis-shaped keys.
 
+Legacy checkpoints (one rule, ``LEGACY_REFINER``). Checkpoints written before the temporal refiner was
+deleted (the shipped default among them) carry its config block ``config.vae.refiner`` and, when it was
+trained, its weights ``vae/refiner/...``. A config with that block is read without it (``read_config``), and
+``load`` then drops every tensor under ``vae/refiner/`` and logs one INFO line naming how many it dropped.
+Nothing else is ever dropped: any other unknown config field, a ``vae/refiner/`` tensor in a checkpoint
+whose config has no such block, or any other unexpected tensor still raises.
+
 Official: a directory holding the orbax ``StandardCheckpointer`` directories ``solaris.pt`` (the DiT),
 ``vae.pt`` and ``clip.pt`` (despite the suffix, not torch pickles; nothing is ever unpickled). Each holds
 an NNX ``State`` saved by orbax, so every leaf path ends in ``value`` (``blocks/modulation/value``);
@@ -33,6 +40,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import logging
 import os
 import pathlib
 import re
@@ -57,6 +65,9 @@ WEIGHTS_FILE = "weights.safetensors"
 SHARD_FILE = "weights-{index:05d}-of-{count:05d}.safetensors"
 SHARD_RE = re.compile(r"weights-(\d{5})-of-(\d{5})\.safetensors")
 OFFICIAL_FILES = {"dit": "solaris.pt", "vae": "vae.pt", "image_encoder": "clip.pt"}
+LEGACY_REFINER = "refiner"  # the deleted temporal refiner: config.vae.refiner and the tensors vae/refiner/...
+
+logger = logging.getLogger(__name__)
 
 # ---------------------------------------------------------------------------------------------
 # Config <-> JSON
@@ -261,13 +272,32 @@ def read_meta(path) -> dict:
     return meta
 
 
-def read_config(path) -> WorldModelConfig:
+def _without_legacy_refiner(data, where: str) -> tuple[dict, bool]:
+    """(the config dict without ``vae.refiner``, whether it had that block): the legacy rule (module docstring)."""
+    vae = data.get("vae") if isinstance(data, dict) else None
+    if not isinstance(vae, dict) or LEGACY_REFINER not in vae:
+        return data, False
+    if not isinstance(vae[LEGACY_REFINER], dict):
+        raise ValueError(  # noqa: TRY004  (a bad config is a ValueError throughout)
+            f"{where}: config.vae.{LEGACY_REFINER} must be the deleted temporal refiner's object, "
+            f"got {vae[LEGACY_REFINER]!r}")
+    return {**data, "vae": {k: v for k, v in vae.items() if k != LEGACY_REFINER}}, True
+
+
+def _read_config(path) -> tuple[WorldModelConfig, bool]:
+    """(the config, whether it is a legacy one with the deleted refiner's block)."""
     meta = read_meta(path)
     if meta.get("format") != FORMAT:
         raise ValueError(f"{path}/{CONFIG_FILE} has format {meta.get('format')!r}; expected {FORMAT!r}")
     if meta.get("version") != VERSION:
         raise ValueError(f"{path}/{CONFIG_FILE} has version {meta.get('version')!r}; this code reads {VERSION}")
-    return config_from_dict(meta["config"])
+    data, legacy = _without_legacy_refiner(meta["config"], f"{path}/{CONFIG_FILE}")
+    return config_from_dict(data), legacy
+
+
+def read_config(path) -> WorldModelConfig:
+    """The config of our checkpoint directory (a legacy ``vae.refiner`` block dropped: module docstring)."""
+    return _read_config(path)[0]
 
 
 def load(path) -> tuple[WorldModelConfig, tuple]:
@@ -275,7 +305,7 @@ def load(path) -> tuple[WorldModelConfig, tuple]:
     from safetensors.numpy import load_file
 
     path = pathlib.Path(path)
-    config = read_config(path)
+    config, legacy = _read_config(path)
     tensors = {}
     for file in weight_files(path):
         try:
@@ -286,6 +316,12 @@ def load(path) -> tuple[WorldModelConfig, tuple]:
         if repeated:
             raise ValueError(f"{file}: tensors {repeated} are also in an earlier shard")
         tensors.update(part)
+    if legacy:
+        prefix = f"vae/{LEGACY_REFINER}/"
+        dropped = sorted(k for k in tensors if k.startswith(prefix))
+        tensors = {k: v for k, v in tensors.items() if not k.startswith(prefix)}
+        logger.info("%s: legacy checkpoint of the deleted temporal refiner: dropped its config block vae.%s and "
+                    "%d weight tensors %s*", path, LEGACY_REFINER, len(dropped), prefix)
     abstract = _abstract(config)
     expected = {f"{name}/{key}": _spec(v) for name, (_, state) in abstract.items()
                 for key, v in flat_params(state).items()}

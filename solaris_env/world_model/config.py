@@ -137,36 +137,6 @@ DECODER_LAYOUT_FIELDS = ("decoder_base_dim", "decoder_head_upscale")
 
 
 @dataclass(frozen=True, slots=True)
-class RefinerConfig:
-    """The temporal refiner after the VAE decoder (ours, ``refiner.py``): each decoded frame is blended with the
-    previous output frame (moved by the frame's camera turn with ``camera_shift``) by a gate per ``pool x pool``
-    pixel cell, so a view that has not changed keeps the exact pixels of the first frame. ``width`` 0 = off (the
-    official layout)."""
-
-    width: int = 0  # channels of the gate network; 0 = no refiner
-    pool: int = 4  # pixels per gate cell along each axis
-    action_dim: int = 0  # the action vector the gate reads (0 = none; else ActionConfig.action_dim)
-    # (height, width) pixels the view's content moves per degree of pitch / yaw: the previous frame is moved by
-    # each frame's camera turn before the blend (camera.content_shift); (0, 0) = no move
-    camera_shift: tuple[float, float] = (0.0, 0.0)
-
-    def __post_init__(self):
-        _require(len(self.camera_shift) == 2 and all(math.isfinite(c) for c in self.camera_shift),
-                 f"refiner.camera_shift must be two finite numbers (pixels per degree), got {self.camera_shift}")
-        _require(self.width >= 0, f"refiner.width must be >= 0 (0 = off), got {self.width}")
-        _require(self.pool >= 1, f"refiner.pool must be >= 1, got {self.pool}")
-        _require(self.action_dim >= 0, f"refiner.action_dim must be >= 0, got {self.action_dim}")
-
-    @property
-    def enabled(self) -> bool:
-        return self.width > 0
-
-    @property
-    def camera_shift_enabled(self) -> bool:
-        return any(c != 0.0 for c in self.camera_shift)
-
-
-@dataclass(frozen=True, slots=True)
 class VAEConfig:
     """A Wan-style causal video VAE (docs/model.md §7.1). ``temporal_downsample[i]`` says whether stage i
     halves time; the spatial factor is 2 ** (len(dim_mult) - 1)."""
@@ -194,7 +164,6 @@ class VAEConfig:
     latent_std: tuple[float, ...] = ()
     dtype: str = "float32"  # compute dtype (the official weights are mostly bf16)
     param_dtype: str = "float32"
-    refiner: RefinerConfig = field(default_factory=RefinerConfig)  # off by default
 
     def __post_init__(self):
         _require(len(self.temporal_downsample) == len(self.dim_mult) - 1,
@@ -342,11 +311,6 @@ class WorldModelConfig:
         _require(self.num_players >= 1, f"num_players must be >= 1, got {self.num_players}")
         _require(self.dit.multiplayer == "concat" or self.num_players <= self.dit.max_players,
                  f"num_players={self.num_players} exceeds dit.max_players={self.dit.max_players}")
-        r = self.vae.refiner
-        _require(r.action_dim in (0, self.action.action_dim),
-                 f"vae.refiner.action_dim must be 0 or the action size {self.action.action_dim}, got {r.action_dim}")
-        _require(not r.enabled or (self.frame_height % r.pool == 0 and self.frame_width % r.pool == 0),
-                 f"frame size {self.frame_height}x{self.frame_width} must be divisible by vae.refiner.pool={r.pool}")
         _require(self.action.num_action_blocks <= self.dit.num_layers,
                  f"action.num_action_blocks={self.action.num_action_blocks} > dit.num_layers={self.dit.num_layers}")
 

@@ -36,7 +36,6 @@ import numpy as np
 from flax import nnx
 
 from solaris_env.world_model.config import VAEConfig
-from solaris_env.world_model.refiner import Refiner
 
 Cache = Any  # a pytree of arrays; None = the start of a stream
 _NORM_EPS = 1e-12  # RMS_norm divides by max(||x||, eps), like torch's F.normalize
@@ -346,8 +345,6 @@ class CausalVideoVAE(nnx.Module):
         self.conv1 = CausalConv3d(2 * cfg.z_dim, 2 * cfg.z_dim, (1, 1, 1), **kw)  # moments (mu, logvar)
         self.conv2 = CausalConv3d(cfg.z_dim, cfg.z_dim, (1, 1, 1), **kw)  # latent -> decoder input
         self.decoder = Decoder(cfg, rngs=rngs)
-        # the temporal refiner after the decoder (ours; ``refiner.py``); the streaming env applies it
-        self.refiner = Refiner(cfg.refiner, rngs=rngs) if cfg.refiner.enabled else None
 
     # -- helpers ---------------------------------------------------------------------------------
     def normalize(self, mu_BFhwc: jax.Array) -> jax.Array:

@@ -13,11 +13,6 @@ decodes latent frame 0 (its commit is left to the first ``step``) and stores tha
 ``step`` then generates latent frame i >= 1 and returns exactly k frames. Video frame index of the
 frames returned by the n-th step (n = 1, 2, ...): k*(n-1)+1 .. k*n, frame 0 being ``frame0_BPHW3``.
 
-The temporal refiner (``VAEConfig.refiner``, ours; off in the official layout). When on, every decoded
-frame is blended with the previous output frame by a learned per-cell gate (``refiner.Refiner``), starting
-from the given first frame: ``frame0_BPHW3`` is then the first frame itself, and the state carries the last
-output frame and the last decode (``frame_BPHW3`` / ``decoded_BPHW3``; None when off).
-
 Actions. ``actions_BPk25`` of step n are the model's 25-dim vectors (keyboard 23 binary flags, then
 mouse yaw/pitch after ``camera_linear``; ``spaces.env_action_to_model_vector``) of video frames
 k*(n-1)+1 .. k*n. The state keeps the last ``action_window`` actions as a rolling buffer, initialised
@@ -168,9 +163,7 @@ class WorldState:
     dit_cache: kv_cache.DiTCache  # rolling caches of the committed frames (all but the last), leaves (B, 1, ...)
     vae_cache: Any  # streaming VAE-decoder cache, leaves (B, P, ...)
     latent_BP1hwC: jax.Array  # (B, P, 1, h, w, C) f32: the last generated latent frame (the next step commits it)
-    frame0_BPHW3: jax.Array  # (B, P, H, W, 3) uint8: latent frame 0 decoded (init / reset); with the refiner the first frame
-    frame_BPHW3: jax.Array | None = None  # (B, P, H, W, 3) f32 in [-1, 1]: the last output frame (refiner only)
-    decoded_BPHW3: jax.Array | None = None  # (B, P, H, W, 3) f32: the decode it was refined from (refiner only)
+    frame0_BPHW3: jax.Array  # (B, P, H, W, 3) uint8: latent frame 0 decoded (init / reset)
 
     @property
     def num_worlds(self) -> int:
@@ -316,22 +309,18 @@ class Programs:
     def _first_pass_world(self, params, ws: WorldState, actions_PkA):
         return self._first_pass(self._modules(params)[:2], ws, actions_PkA)[2:]
 
-    def _decode_world(self, params, ws: WorldState, x0_P1hwC, actions_PkA):
-        """(frames (P, k, H, W, 3) uint8, the VAE cache, the refiner's carry (last frame, last decode) or None)."""
+    def _decode_world(self, params, ws: WorldState, x0_P1hwC):
+        """(frames (P, k, H, W, 3) uint8, the VAE cache)."""
         vae = self._modules(params)[2]
         video, vae_cache = vae.decode_step(x0_P1hwC, ws.vae_cache)  # (P, k, H, W, 3) in [-1, 1]
-        if vae.refiner is None:
-            return frames_to_uint8(video), vae_cache, None
-        video, decoded = vae.refiner(video, ws.decoded_BPHW3, ws.frame_BPHW3, actions_PkA), video
-        return frames_to_uint8(video), vae_cache, (video[:, -1], decoded[:, -1])
+        return frames_to_uint8(video), vae_cache
 
-    def _advance(self, ws: WorldState, actions_PkA, x0_P1hwC, dit_cache, vae_cache, refined) -> WorldState:
-        """The bookkeeping after a step: next key, frame index, action buffer, caches, latent, refiner carry."""
+    def _advance(self, ws: WorldState, actions_PkA, x0_P1hwC, dit_cache, vae_cache) -> WorldState:
+        """The bookkeeping after a step: next key, frame index, action buffer, caches, latent."""
         next_key, _ = jax.random.split(ws.key_B)
-        ws = ws.replace(key_B=next_key, frame_index_B=ws.frame_index_B + 1,
-                        actions_BPWA=self._window(ws, actions_PkA), dit_cache=dit_cache, vae_cache=vae_cache,
-                        latent_BP1hwC=x0_P1hwC)
-        return ws if refined is None else ws.replace(frame_BPHW3=refined[0], decoded_BPHW3=refined[1])
+        return ws.replace(key_B=next_key, frame_index_B=ws.frame_index_B + 1,
+                          actions_BPWA=self._window(ws, actions_PkA), dit_cache=dit_cache, vae_cache=vae_cache,
+                          latent_BP1hwC=x0_P1hwC)
 
     def _cond_table(self, vae, first_PHW3):
         """(P, cond_frames, h, w, Cc): conditioning of latent frames 0..steady, encoded chunk by chunk."""
@@ -360,14 +349,10 @@ class Programs:
         key, frame_key = jax.random.split(key)
         x0 = self._sample(dit, parts, *self._noise(frame_key, first.shape[0]), start)  # committed by step 1
         video, vae_cache = vae.decode_step(x0, None)  # latent frame 0 -> 1 video frame
-        state = WorldState(key_B=key, frame_index_B=start + 1, actions_BPWA=actions, context_BPMC=context,
-                           context_kv=context_kv,
-                           cond_BPFhwC=cond, dit_cache=cache, vae_cache=vae_cache, latent_BP1hwC=x0,
-                           frame0_BPHW3=frames_to_uint8(video[:, 0]))
-        if vae.refiner is None:
-            return state
-        # the refiner starts from the given first frame (its output frame 0) and the decode of latent frame 0
-        return state.replace(frame0_BPHW3=first_PHW3_uint8, frame_BPHW3=first, decoded_BPHW3=video[:, 0])
+        return WorldState(key_B=key, frame_index_B=start + 1, actions_BPWA=actions, context_BPMC=context,
+                          context_kv=context_kv,
+                          cond_BPFhwC=cond, dit_cache=cache, vae_cache=vae_cache, latent_BP1hwC=x0,
+                          frame0_BPHW3=frames_to_uint8(video[:, 0]))
 
     # -- batched over worlds (what gets jitted) -------------------------------------------------------
     def init(self, params, first_frames_BPHW3, first_actions_BPA, rng):
@@ -377,8 +362,8 @@ class Programs:
 
     def step(self, params, state: WorldState, actions_BPkA):
         x0, dit_cache = self.denoise(params, state, actions_BPkA)
-        frames, vae_cache, refined = self.decode(params, state, x0, actions_BPkA)
-        return frames, jax.vmap(self._advance)(state, actions_BPkA, x0, dit_cache, vae_cache, refined)
+        frames, vae_cache = self.decode(params, state, x0)
+        return frames, jax.vmap(self._advance)(state, actions_BPkA, x0, dit_cache, vae_cache)
 
     def denoise(self, params, state: WorldState, actions_BPkA):
         """Every DiT pass of a step: (x0 (B, P, 1, h, w, C), the caches with the previous frame committed)."""
@@ -388,11 +373,11 @@ class Programs:
         """The fused commit + first denoising pass alone (part of ``denoise``; timed by the benchmark)."""
         return jax.vmap(self._first_pass_world, in_axes=(None, 0, 0))(params, state, actions_BPkA)
 
-    def decode(self, params, state: WorldState, x0_BP1hwC, actions_BPkA):
-        """(frames (B, P, k, H, W, 3) uint8, VAE cache, refiner carry or None) of the generated latents."""
+    def decode(self, params, state: WorldState, x0_BP1hwC):
+        """(frames (B, P, k, H, W, 3) uint8, VAE cache) of the generated latents."""
         # one world at a time: the VAE's full-resolution convolutions run ~1.5x faster on CPU with the
         # activations of P*k frames than with B*P*k (cache locality); the DiT is better batched.
-        return jax.lax.map(lambda args: self._decode_world(params, *args), (state, x0_BP1hwC, actions_BPkA))
+        return jax.lax.map(lambda args: self._decode_world(params, *args), (state, x0_BP1hwC))
 
     def reset_one(self, params, state: WorldState, index, first_PHW3, first_actions_PA, key):
         """Replace world ``index`` (traced int) by a fresh world; the others are untouched."""
@@ -513,8 +498,7 @@ class WorldModel:
             rng: int seed or PRNG key; world b uses ``jax.random.split(rng, B)[b]``.
             first_actions: optional (B, P, 25) action of frame 0 (left-padding value); default zeros.
         Returns:
-            the state; ``state.frame0_BPHW3`` is latent frame 0 decoded (one frame per player), or the first
-            frames themselves with the refiner (``VAEConfig.refiner``).
+            the state; ``state.frame0_BPHW3`` is latent frame 0 decoded (one frame per player).
         """
         first_frames = self._check_frames(first_frames, "first_frames")
         b = first_frames.shape[0]

@@ -238,10 +238,7 @@ def test_assign_states_puts_a_normal_world_first_and_partner_programs_in_view():
 
 
 def test_model_specs_and_labels_never_absolute():
-    assert df.parse_model_spec("default:no-refiner") == ("default", True)
-    assert df.parse_model_spec("runs/x/model") == ("runs/x/model", False)
     assert df.model_label("default") == "shipped default"
-    assert df.model_label("default:no-refiner") == "shipped default, refiner off"
     assert df.model_label("preset:test") == "preset test (random init)"
     assert df.model_label(str(df.REPO / "runs" / "a" / "model")) == "runs/a/model"
     assert not df.model_label("/somewhere/else/runs/b/model").startswith("/")
@@ -255,19 +252,18 @@ def test_model_specs_and_labels_never_absolute():
 @pytest.mark.slow  # ~50 s on 2 shared cores, ~45 of them building and compiling the test-preset model
 def test_end_to_end_tiny_run_writes_json_png_mp4(tmp_path):
     out = tmp_path / "fid.json"
-    result = df.main(["--model", "preset:test:no-refiner", "--quick", "--steps", "3", "--per-program", "1",
+    result = df.main(["--model", "preset:test", "--quick", "--steps", "3", "--per-program", "1",
                       "--programs", "forward", "yaw_right_15", "partner_toward", "bot", "--out", str(out)])
     text = out.read_text()
     assert json.loads(text)["benchmark"] == "dream_fidelity"
     assert (tmp_path / "fid.png").stat().st_size > 0 and (tmp_path / "fid.mp4").stat().st_size > 0
     assert str(tmp_path) not in text and str(df.REPO) not in text  # no absolute paths
     setup = result["setup"]
-    assert setup["models"] == [{"spec": "preset:test:no-refiner", "name": "preset test (random init), refiner off",
-                                "refiner": False}]
+    assert setup["models"] == [{"spec": "preset:test", "name": "preset test (random init)"}]
     assert {s["world"] for s in setup["start_states"]} == set(df.WORLD_CLASSES)
     assert {s["partner_in_view"] for s in setup["start_states"]} == {True, False}
     assert setup["bot_episode"]["type"]
-    res = result["results"]["preset test (random init), refiner off"]
+    res = result["results"]["preset test (random init)"]
     assert set(res["programs"]) == {"forward", "yaw_right_15", "partner_toward", "bot"}
     row = res["programs"]["yaw_right_15"]["windows"]["1-8"]
     assert row["steps"] == 3 and row["view_change_engine"] > 1.0

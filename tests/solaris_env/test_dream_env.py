@@ -26,13 +26,22 @@ def solid_frames(env, values):
     return {a: np.full((env.height, env.width, 3), v, np.uint8) for a, v in zip(env.possible_agents, values)}
 
 
-def test_shipped_default_model_loads_and_is_small():
+@pytest.mark.slow  # ~35 s on 2 shared cores, most of it compiling the tiny model's step
+def test_shipped_default_model_loads_steps_and_is_small():
+    """The shipped default (a legacy checkpoint: its deleted temporal refiner is dropped on load, the weights
+    file is the committed one) loads and steps in ``DreamParallelEnv``."""
     size = sum(f.stat().st_size for f in DEFAULT_CHECKPOINT.iterdir())
     assert size < 50 * 2**20, f"{DEFAULT_CHECKPOINT} is {size / 2**20:.1f} MiB (budget 50)"
     for name in ("training_log.md", "eval.json", "train_config.json", "contact_sheet.png"):
         assert (DEFAULT_CHECKPOINT / name).is_file(), name
     model = WorldModel.load(DEFAULT_CHECKPOINT)
     assert model.config.name == "tiny" and model.num_players == 2 and model.frame_shape == (64, 64, 3)
+    env = DreamParallelEnv(model=model)
+    obs, _ = env.reset(seed=0)
+    obs, _, _, _, infos = env.step({a: noop() for a in env.agents})
+    for a in env.agents:
+        assert obs[a].shape == (64, 64, 3) and obs[a].dtype == np.uint8
+        assert infos[a]["frames"].shape == (model.frames_per_step, 64, 64, 3)
 
 
 def test_without_checkpoint_or_preset_the_missing_default_is_a_clear_error(monkeypatch, tmp_path):

@@ -15,7 +15,7 @@ def test_repo_root_is_this_checkout():
 
 
 def test_a_path_under_the_repository_becomes_repository_relative(monkeypatch):
-    assert portable_path(ROOT / "runs" / "all15" / "refiner" / "model") == "runs/all15/refiner/model"
+    assert portable_path(ROOT / "runs" / "all15" / "self-forcing" / "model") == "runs/all15/self-forcing/model"
     assert portable_path(str(ROOT / "data" / "tiny320")) == "data/tiny320"
     assert portable_path(ROOT) == "."
     monkeypatch.chdir(ROOT / "docs")  # a relative path counts from the current directory
@@ -23,10 +23,10 @@ def test_a_path_under_the_repository_becomes_repository_relative(monkeypatch):
 
 
 def test_a_path_outside_the_repository_keeps_only_its_last_components(tmp_path):
-    outside = tmp_path / "runs" / "all8" / "refiner" / "model"
+    outside = tmp_path / "runs" / "all8" / "self-forcing" / "model"
     assert not outside.is_relative_to(ROOT)
-    assert portable_path(outside) == "refiner/model"
-    assert portable_path(outside, parts=3) == "all8/refiner/model"
+    assert portable_path(outside) == "self-forcing/model"
+    assert portable_path(outside, parts=3) == "all8/self-forcing/model"
     assert portable_path("/work/runs/all8") == "runs/all8"
     assert portable_path("/data") == "data" and portable_path("/") == "."
     for p in (outside, "/tmp/dream", "~/runs/x", "/"):
@@ -42,6 +42,6 @@ def test_portable_text_replaces_only_absolute_paths():
                                            "--checkpoint runs/x/model --out=tmp/pe/policy_eval.json")
     assert portable_text("ppo:/work/runs/agents/ppo-s1/checkpoints/step_1.zip", parts=3) == (
         "ppo:ppo-s1/checkpoints/step_1.zip")
-    for unchanged in ("default", "default:no-refiner", "preset:test", "runs/x/model", "ppo:runs/a/step_1.zip",
+    for unchanged in ("default", "preset:tiny16", "preset:test", "runs/x/model", "ppo:runs/a/step_1.zip",
                       "8 / 16", "http://127.0.0.1:8765/", "steps/s"):
         assert portable_text(unchanged) == unchanged

@@ -20,8 +20,6 @@ from training.stage_config import (
     AllConfig,
     CollectConfig,
     FlowStageConfig,
-    RefinerLayout,
-    RefinerStageConfig,
     SelfForcingStageConfig,
     TrainingConfig,
     VAEDecoderStageConfig,
@@ -89,7 +87,7 @@ def test_every_sprint_override_is_a_field_and_validates(preset):
             assert {k: block[k] for k in override} == override, (platform, stage)
         assert cfg.stages["mp-causal"].steps >= 10**9 and cfg.stages["mp-causal"].ckpt_every == 0
         assert cfg.stages["mp-causal"].rescan_s == sprint.rescan_s
-        assert not hasattr(cfg.stages["refiner"], "rescan_s")  # settings only where the stage has the key
+        assert not hasattr(cfg.stages["vae"], "lr_decay_steps")  # settings only where the stage has the key
 
 
 def _tiny_with(stage: str, **changes) -> dict:
@@ -109,12 +107,6 @@ def _tiny_with(stage: str, **changes) -> dict:
     ("vae-decoder", {"rescan_s": "often"}, r"\[vae-decoder\]: rescan_s must be a number >= 0 or null, got 'often'"),
     ("vae", {"lr_decay_steps": 2}, r"\[vae\]: unknown keys \['lr_decay_steps'\]"),
     ("self-forcing", {"generator": "fast"}, r"\[self-forcing\]: generator must be one of \('checkpointed', 'naive'\)"),
-    ("refiner", {"loss": "l1"}, r"\[refiner\]: loss must be one of \('mse', 'log_mse'\), got 'l1'"),
-    ("refiner", {"init_from": "refiner"}, r"\[refiner\]: init_from must be one of"),
-    ("refiner", {"refiner": {"width": 0, "pool": 4, "actions": True}},
-     r"\[refiner\]: refiner: width must be an int >= 1, got 0"),
-    ("refiner", {"refiner": {"width": 8, "pool": 4, "actions": True, "camera_shift": [1.0]}},
-     r"\[refiner\]: refiner: camera_shift must be a list of 2 numbers"),
 ])
 def test_a_bad_key_or_value_names_the_stage_the_field_and_what_it_takes(stage, changes, message):
     with pytest.raises(ValueError, match=message):
@@ -185,8 +177,8 @@ def test_file_level_errors_name_the_file(tmp_path):
         load_stage_config("tiny", path)
     with pytest.raises(ValueError, match=r"unknown keys \['stage3'\]"):
         TrainingConfig.from_dict({**data, "stage3": {}}, "x.json")
-    with pytest.raises(ValueError, match=r"x.json: missing keys \['refiner'\]"):
-        TrainingConfig.from_dict({k: v for k, v in data.items() if k != "refiner"}, "x.json")
+    with pytest.raises(ValueError, match=r"x.json: missing keys \['self-forcing'\]"):
+        TrainingConfig.from_dict({k: v for k, v in data.items() if k != "self-forcing"}, "x.json")
     del data["mp-causal"]["lr"]
     with pytest.raises(ValueError, match=r"\[mp-causal\]: missing keys \['lr'\]"):
         TrainingConfig.from_dict(data, "x.json")
@@ -203,8 +195,7 @@ def test_sprint_override_errors_name_the_override():
 
 def test_defaults_are_the_ones_the_stages_used_before():
     """Before the dataclasses: ``sc.get("lr_decay_steps", 0)``, ``sc.get("ema_decay", 0.0)``,
-    ``sc.get("rescan_s")``, ``sc.get("generator", "checkpointed")``, ``sc.get("init_from", "self-forcing")``,
-    ``sc.get("loss", "mse")``, ``r.get("camera_shift", (0.0, 0.0))``; the CLI's ``get("seed", 0)``,
+    ``sc.get("rescan_s")``, ``sc.get("generator", "checkpointed")``; the CLI's ``get("seed", 0)``,
     ``get("collect")``, ``get("all", {})`` and, in the ``all`` block, ``get("time_budget_min")``,
     ``get("elastic_stage", "mp-causal")``, ``get("reserve_min", 0.0)``; ``collect_argv``'s optional
     ``instances`` and ``types`` (absent: the engine's defaults)."""
@@ -215,10 +206,6 @@ def test_defaults_are_the_ones_the_stages_used_before():
     assert VAEDecoderStageConfig.from_dict(decoder, "vae-decoder").rescan_s is None
     sf = SelfForcingStageConfig.from_dict({**LOOP, "generator_lr": 1e-4, "critic_lr": 1e-4, "sample_every": 1}, "sf")
     assert (sf.generator, sf.rescan_s) == ("checkpointed", None)
-    refiner = RefinerStageConfig.from_dict({**LOOP, "lr": 1e-3, "rollout_parts": 1, "segments_per_part": 2,
-                                            "refiner": {"width": 4, "pool": 4, "actions": True}}, "refiner")
-    assert (refiner.init_from, refiner.loss) == ("self-forcing", "mse")
-    assert refiner.refiner == RefinerLayout(width=4, pool=4, actions=True, camera_shift=(0.0, 0.0))
     data = load_stage_config("test").to_dict()
     for key in ("seed", "all", "collect"):
         data.pop(key)
@@ -235,8 +222,8 @@ def test_defaults_are_the_ones_the_stages_used_before():
 def test_the_all_block_and_the_time_budget_flag():
     """``--time-budget-min`` overrides the ``all`` block's budget, as before; 0 means none."""
     block = load_stage_config("tiny").all
-    assert budget_settings(argparse.Namespace(time_budget_min=None), block) == (150 * 60.0, "mp-causal", 28 * 60.0)
-    assert budget_settings(argparse.Namespace(time_budget_min=30.0), block) == (30 * 60.0, "mp-causal", 28 * 60.0)
+    assert budget_settings(argparse.Namespace(time_budget_min=None), block) == (150 * 60.0, "mp-causal", 12 * 60.0)
+    assert budget_settings(argparse.Namespace(time_budget_min=30.0), block) == (30 * 60.0, "mp-causal", 12 * 60.0)
     assert budget_settings(argparse.Namespace(time_budget_min=0.0), block)[0] is None
     assert budget_settings(argparse.Namespace(time_budget_min=None), dataclasses.replace(block, time_budget_min=0.0)
                            )[0] is None
@@ -255,10 +242,8 @@ def test_the_collect_block_choices_match_the_engine():
 
 
 def test_the_stage_kinds_match_the_stage_functions():
-    from training.refine import LOSSES
     from training.train import FLOW_STAGES
 
     assert set(STAGE_CONFIGS) == set(STAGES + EXTRA_STAGES)
     assert {s for s, c in STAGE_CONFIGS.items() if c is FlowStageConfig} == set(FLOW_STAGES)
-    loss = next(f for f in dataclasses.fields(RefinerStageConfig) if f.name == "loss")
-    assert loss.metadata["choices"] == LOSSES
+    assert STAGES[-1] == "self-forcing"  # ``all``'s last stage writes the final model

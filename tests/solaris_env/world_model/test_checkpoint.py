@@ -141,6 +141,68 @@ def test_load_rejects_other_versions_and_unknown_directories(model, tmp_path):
         WorldModel.load(tmp_path / "nothing-here")
 
 
+# the deleted temporal refiner as checkpoints written before its deletion hold it: a config block, its weights
+LEGACY_REFINER_BLOCK = {"width": 4, "pool": 4, "action_dim": 25, "camera_shift": [0.8, 0.45]}
+LEGACY_REFINER_TENSORS = {"vae/refiner/conv_in/kernel": np.ones((3, 3, 7, 4), np.float32),
+                          "vae/refiner/conv_in/bias": np.zeros((4,), np.float32),
+                          "vae/refiner/conv_mid/0/kernel": np.ones((3, 3, 4, 4), np.float32)}
+
+
+def _legacy_checkpoint(model: WorldModel, path: pathlib.Path, block=LEGACY_REFINER_BLOCK, extra=None):
+    """``model`` saved, then given the deleted refiner's config block (unless None) and weights, plus ``extra``."""
+    from safetensors.numpy import load_file, save_file
+
+    model.save(path)
+    meta = json.loads((path / checkpoint.CONFIG_FILE).read_text())
+    if block is not None:
+        meta["config"]["vae"]["refiner"] = block
+    (path / checkpoint.CONFIG_FILE).write_text(json.dumps(meta))
+    tensors = load_file(str(path / checkpoint.WEIGHTS_FILE))
+    save_file({**tensors, **LEGACY_REFINER_TENSORS, **(extra or {})}, str(path / checkpoint.WEIGHTS_FILE))
+    return path
+
+
+def test_a_legacy_refiner_checkpoint_loads_with_the_refiner_dropped_and_logged(model, tmp_path, caplog):
+    """The one legacy rule: a config's ``vae.refiner`` block and the tensors ``vae/refiner/...`` are dropped, with
+    one INFO line naming how many tensors went; every other parameter loads unchanged."""
+    path = _legacy_checkpoint(model, tmp_path / "ckpt")
+    assert checkpoint.read_config(path) == model.config
+    with caplog.at_level("INFO", logger="solaris_env.world_model.checkpoint"):
+        loaded = WorldModel.load(path)
+    assert loaded.config == model.config
+    _assert_same_params(model, loaded)
+    lines = [r for r in caplog.records if r.name == "solaris_env.world_model.checkpoint"]
+    assert len(lines) == 1 and lines[0].levelname == "INFO"
+    assert "deleted temporal refiner" in lines[0].getMessage() and "3 weight tensors" in lines[0].getMessage()
+    caplog.clear()
+    model.save(tmp_path / "current")
+    with caplog.at_level("INFO", logger="solaris_env.world_model.checkpoint"):
+        WorldModel.load(tmp_path / "current")
+    assert not caplog.records  # a current checkpoint: nothing dropped, nothing logged
+
+
+def test_the_legacy_rule_drops_nothing_else(model, tmp_path):
+    """An unrelated unknown tensor or config field still raises, as do refiner tensors without the config block
+    and a refiner block anywhere but ``vae``."""
+    path = _legacy_checkpoint(model, tmp_path / "extra", extra={"vae/decoder/extra/kernel": np.zeros((2,), np.float32)})
+    with pytest.raises(ValueError, match=r"unexpected keys \(1\): \['vae/decoder/extra/kernel'\]"):
+        WorldModel.load(path)
+    path = _legacy_checkpoint(model, tmp_path / "no-block", block=None)
+    with pytest.raises(ValueError, match=r"unexpected keys \(3\): \['vae/refiner/conv_in/bias'"):
+        WorldModel.load(path)
+    path = _legacy_checkpoint(model, tmp_path / "bad-block", block=32)
+    with pytest.raises(ValueError, match=r"config.vae.refiner must be the deleted temporal refiner's object, got 32"):
+        WorldModel.load(path)
+    path = _legacy_checkpoint(model, tmp_path / "other-field")
+    meta = json.loads((path / checkpoint.CONFIG_FILE).read_text())
+    for section, field, cls in (("vae", "bogus", "VAEConfig"), ("dit", "refiner", "DiTConfig")):
+        edited = json.loads(json.dumps(meta))
+        edited["config"][section][field] = LEGACY_REFINER_BLOCK
+        (path / checkpoint.CONFIG_FILE).write_text(json.dumps(edited))
+        with pytest.raises(ValueError, match=rf"config.{section} has unknown fields \['{field}'\] for {cls}"):
+            WorldModel.load(path)
+
+
 def test_from_preset_initialises_and_round_trips(tmp_path):
     fresh = WorldModel.from_preset("test", seed=0)
     dit = fresh.modules()[0]
