@@ -294,10 +294,14 @@ class ApproachPartnerTask(PartnerTask):
     when clearly farther, 0 otherwise; only while the partner is on screen in one of the two frames.
 
     Judge: the ``visible`` probe says "yes" for either frame and the ``motion`` probe, shown (the frame
-    ``gap`` steps ago, the frame now), answers "closer" / "farther". Truth: the partner is visible (at least
-    ``min_visible_pixels``) in either frame and the distance between the players changed by a log ratio
-    ln(d_now / d_then) beyond -+ ``motion_log_distance_threshold`` (the motion judge's labelling rule). Early in
-    an episode the first frame stands in for the frame ``gap`` steps ago. Never terminates.
+    ``gap`` steps ago, the frame now), answers "closer" / "farther". Truth: the answer the motion probe was
+    trained to give, by its labelling rule (``judges.labels.motion_class``): the partner is clearly visible (at
+    least ``min_visible_pixels``) in either frame and has a screen position in both (its avatar's centroid, or,
+    at ``motion_far_distance`` blocks or more, the projection of its body centre); the distance's log ratio
+    ln(d_now / d_then) is the radial score and the centroid's shift the lateral one, and "closer" / "farther"
+    needs the radial score beyond the threshold and dominant. A player pressed against the partner, whose avatar
+    fills or leaves the screen, earns nothing for the jitter of a tiny distance. Early in an episode the first
+    frame stands in for the frame ``gap`` steps ago. Never terminates.
 
     Args:
         gap: env steps between the compared frames. The motion probe was trained on pairs 10-60 video frames
@@ -327,22 +331,42 @@ class ApproachPartnerTask(PartnerTask):
             motion = np.array(self.judge.answer("motion", then, now))
             closer_P, farther_P = motion == "closer", motion == "farther"
         else:
-            log_ratio_P = np.log(np.maximum(now, 1e-3) / np.maximum(then, 1e-3))
-            closer_P = log_ratio_P <= -self.labels.motion_log_distance_threshold
-            farther_P = log_ratio_P >= self.labels.motion_log_distance_threshold
+            motion = np.array([self._motion_truth(a, b) for a, b in zip(then, now)])
+            closer_P, farther_P = motion == "closer", motion == "farther"
         seen_P = visible_then_P | visible_now_P
         self._history = (self._history + [(now, visible_now_P)])[-self.gap:]  # next step compares with t+1-gap
         rewards_P = np.where(seen_P, closer_P.astype(np.float32) - farther_P.astype(np.float32), 0.0)
         return TaskStep(rewards_P.astype(np.float32), np.zeros(p, bool))
 
     def _observe(self, frames_PHW3: np.ndarray, truth) -> tuple[Any, np.ndarray]:
-        """What a step keeps: (frames (P, H, W, 3) or distances (P,), partner visible (P,) bool)."""
+        """What a step keeps: (frames (P, H, W, 3) or per player (distance, screen u or None, clearly visible),
+        partner visible (P,) bool)."""
         if self.source == "judge":
             return frames_PHW3.copy(), np.array(self.judge.answer("visible", frames_PHW3)) == "yes"
+        from solaris_env.judges.labels import far_screen_u, visibility_of
+
         truth = self._truth(truth)
         pos_P3 = np.stack([np.asarray(t["pos"], np.float64) for t in truth])
         distance_P = np.linalg.norm(pos_P3 - pos_P3[::-1], axis=-1)  # two players: each one's partner is the other
-        return distance_P, np.array([self._visible_truth(t) for t in truth])
+        seen = []
+        for t, d, partner_3 in zip(truth, distance_P, pos_P3[::-1]):
+            screen = partner_screen(t)
+            clear = visibility_of(screen["pixels"], self.labels)
+            u = screen["u"] if clear else None
+            if not clear and d >= self.labels.motion_far_distance:  # too far to resolve: where it would be
+                eye = np.asarray(t["pos"], np.float64) + np.array([0.0, self.labels.eye_height, 0.0])
+                u = far_screen_u(eye, float(t["yaw"]), float(t["pitch"]), partner_3, self.labels)
+            seen.append((float(d), u, clear is True))
+        return seen, np.array([s[2] for s in seen])
+
+    def _motion_truth(self, then: tuple, now: tuple) -> str | None:
+        """The motion label of one player's partner between two observations (d, u, clearly visible)."""
+        from solaris_env.judges.labels import motion_class, motion_scores_of
+
+        (d1, u1, clear1), (d2, u2, clear2) = then, now
+        if not (clear1 or clear2) or u1 is None or u2 is None:
+            return None
+        return motion_class(*motion_scores_of(u1, u2, d1, d2, self.labels), self.labels)
 
 
 class BuildStructureTask(JudgedTask):

@@ -52,12 +52,16 @@ def pixel_count(gt: Mapping, viewer: str, other: str, frame: int) -> int:
     return round(gt["sight"][viewer][other]["pixel_fraction"][frame] * h * w)
 
 
-def _clearly_visible(gt: Mapping, viewer: str, other: str, frame: int, cfg: LabelConfig) -> bool | None:
-    """True / False when clear, None when 1 .. min_visible_pixels-1 pixels show."""
-    n = pixel_count(gt, viewer, other, frame)
-    if n == 0:
+def visibility_of(pixels: int, cfg: LabelConfig = _DEFAULT) -> bool | None:
+    """A player covering ``pixels`` avatar pixels: True / False when clear, None when 1 .. min_visible_pixels-1
+    pixels show."""
+    if pixels == 0:
         return False
-    return True if n >= cfg.min_visible_pixels else None
+    return True if pixels >= cfg.min_visible_pixels else None
+
+
+def _clearly_visible(gt: Mapping, viewer: str, other: str, frame: int, cfg: LabelConfig) -> bool | None:
+    return visibility_of(pixel_count(gt, viewer, other, frame), cfg)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -142,8 +146,15 @@ def _screen_u(gt: Mapping, viewer: str, other: str, frame: int, cfg: LabelConfig
         return None
     eye, yaw, pitch = _pose(gt, viewer, frame, cfg)
     p = gt["pose"][other]
-    centre = np.array([[p["x"][frame], p["y"][frame] + cfg.avatar_centre_height, p["z"][frame]]])
-    u, v, _ = project(centre, eye, yaw, pitch, cfg)
+    return far_screen_u(eye, yaw, pitch, np.array([p["x"][frame], p["y"][frame], p["z"][frame]]), cfg)
+
+
+def far_screen_u(eye_3: np.ndarray, yaw: float, pitch: float, other_feet_3: np.ndarray,
+                 cfg: LabelConfig = _DEFAULT) -> float | None:
+    """Horizontal screen position of a player too far to resolve: the projection of its body centre (feet
+    + ``avatar_centre_height``) from the camera at ``eye_3`` (yaw / pitch in radians), None when off screen."""
+    centre = np.asarray(other_feet_3, np.float64)[None] + np.array([[0.0, cfg.avatar_centre_height, 0.0]])
+    u, v, _ = project(centre, eye_3, yaw, pitch, cfg)
     return float(u[0]) if _on_screen(u, v)[0] else None
 
 
@@ -162,9 +173,15 @@ def motion_scores(gt: Mapping, viewer: str, frame1: int, frame2: int,
     if u1 is None or u2 is None:
         return None
     s = gt["sight"][viewer][other]
+    return motion_scores_of(u1, u2, s["distance"][frame1], s["distance"][frame2], cfg)
+
+
+def motion_scores_of(u1: float, u2: float, d1: float, d2: float,
+                     cfg: LabelConfig = _DEFAULT) -> tuple[float, float]:
+    """(lateral, radial) in threshold units from the screen positions u and the distances d (blocks) of the
+    other player in the two frames (:func:`motion_scores`)."""
     lateral = (u2 - u1) / cfg.motion_u_threshold
-    d1, d2 = max(s["distance"][frame1], 1e-3), max(s["distance"][frame2], 1e-3)
-    radial = math.log(d2 / d1) / cfg.motion_log_distance_threshold
+    radial = math.log(max(d2, 1e-3) / max(d1, 1e-3)) / cfg.motion_log_distance_threshold
     return lateral, radial
 
 
@@ -173,9 +190,13 @@ def motion_label(gt: Mapping, viewer: str, frame1: int, frame2: int, cfg: LabelC
     "closer" / "farther" / "left" / "right" / "no motion", None when ambiguous or not seen (see
     :func:`motion_scores`)."""
     scores = motion_scores(gt, viewer, frame1, frame2, cfg)
-    if scores is None:
-        return None
-    lateral, radial = scores
+    return None if scores is None else motion_class(*scores, cfg)
+
+
+def motion_class(lateral: float, radial: float, cfg: LabelConfig = _DEFAULT) -> str | None:
+    """The motion answer of (lateral, radial) scores in threshold units (:func:`motion_scores`): "no motion"
+    when both are small, else the dominant one's direction, None when neither dominates or both are between
+    ``motion_still_max`` and 1."""
     big, small = max(abs(lateral), abs(radial)), min(abs(lateral), abs(radial))
     if big < cfg.motion_still_max:
         return "no motion"

@@ -178,6 +178,23 @@ def test_approach_partner_compares_with_the_frame_gap_steps_back():
     assert rewards == [[0, 0], [0, 0], [1, 1], [1, 1], [0, 0]]
 
 
+def test_approach_partner_truth_is_the_motion_judges_labelling_rule():
+    task = ApproachPartnerTask(source="truth", gap=1)
+    def truth(distance, u, pixels=10):  # Alpha at x = 0 looking along -z, Bravo at x = distance
+        seen = {"pixels": pixels, "u": u if pixels else None}
+        return [{"pos": np.zeros(3), "yaw": 0.0, "pitch": 0.0, "screen": {"Bravo": seen}},
+                {"pos": np.array([distance, 0.0, 0.0]), "yaw": 0.0, "pitch": 0.0, "screen": {"Alpha": seen}}]
+    frames = np.zeros((2, 1, 8, 8, 3), np.uint8)
+    def reward(then, now):
+        task.reset(frames[:, 0], truth(*then))
+        return task.step(frames, [noop(), noop()], truth(*now)).rewards_P[0]
+    assert reward((10.0, 0.5), (8.0, 0.5)) == 1.0  # radial alone: closer
+    assert reward((8.0, 0.5), (10.0, 0.52)) == -1.0  # radial dominates a small drift: farther
+    assert reward((10.0, 0.5), (8.0, 0.9)) == 0.0  # the partner swept across the screen: lateral dominates
+    assert reward((10.0, 0.5), (8.0, 0.6)) == 0.0  # neither dominates (radial -1.5, lateral 1.25): ambiguous
+    assert reward((1.0, 0.5, 0), (0.5, 0.5, 0)) == 0.0  # pressed against the partner, no avatar on screen
+
+
 def test_registry_names_and_sources():
     for name, cls in JUDGED_TASKS.items():
         judge, truth = make_task(name), make_task(f"{name}_truth")
