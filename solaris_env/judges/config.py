@@ -128,6 +128,7 @@ class TrainConfig:
     cross_episode_pairs: float = 0.25  # same_scenery: extra "no" pairs from two different normal worlds,
     # as a fraction of the within-episode pairs (the eval's hard "no" is a similar-looking but different view)
     brightness_jitter: float = 0.1  # frames are scaled by U(1 - j, 1 + j)
+    featureless_fraction: float = 0.05  # extra examples per question made of featureless frames (dataset.py)
     log_every: int = 100
 
     def __post_init__(self):
@@ -141,6 +142,8 @@ class TrainConfig:
         _require(self.pairs_per_frame >= 1, f"pairs_per_frame must be >= 1, got {self.pairs_per_frame}")
         _require(self.cross_episode_pairs >= 0, f"cross_episode_pairs must be >= 0, got {self.cross_episode_pairs}")
         _require(0.0 <= self.brightness_jitter < 1.0, f"brightness_jitter must be in [0, 1), got {self.brightness_jitter}")
+        _require(0.0 <= self.featureless_fraction <= 1.0,
+                 f"featureless_fraction must be in [0, 1], got {self.featureless_fraction}")
         _require(self.log_every >= 1, f"log_every must be >= 1, got {self.log_every}")
 
 

@@ -14,6 +14,13 @@ Which frames feed which question:
   same bot's frame ``pair_gap`` away; the two views in random order. Plus ``cross_episode_pairs``
   "no" pairs of two frames from two different normal-world episodes (different world seeds: never the
   same scenery).
+
+Plus, for every question, ``featureless_fraction`` extra examples whose frames carry nothing to see
+(:func:`featureless`: one flat colour, horizontal or vertical stripes of the row or column means, a blur of
+sigma 4-8 pixels), the way a world model's frames fail. Their answer is the one a frame without content
+earns (:data:`FEATURELESS_ANSWER`): no player, no structure, no motion, not the same scenery. Without them a
+probe's answer on such frames is whatever its training data never told it (the structure probe said "yes"
+on all 40 flat frames tested). They are marked ``episode_N == -1`` and scored apart (``train.frame_accuracy``).
 """
 
 from __future__ import annotations
@@ -21,6 +28,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from solaris_env.judges import labels as L
@@ -31,7 +39,8 @@ from solaris_env.judges.episodes import Episode, read_video
 
 @dataclass
 class FrameBank:
-    """frames_NHW3: uint8 (N, S, S, 3); ``where[i]`` = (episode index, bot, frame) of bank row i."""
+    """frames_NHW3: uint8 (N, S, S, 3); ``where[i]`` = (episode index, bot, frame) of bank row i, or
+    (-1, "featureless", -1) for a made-up featureless frame."""
 
     frames_NHW3: np.ndarray
     where: list[tuple[int, str, int]]
@@ -39,7 +48,8 @@ class FrameBank:
 
 @dataclass
 class Examples:
-    """One question's examples: index_NF (N, F) bank rows, label_N (N,) answer index, episode_N (N,)."""
+    """One question's examples: index_NF (N, F) bank rows, label_N (N,) answer index, episode_N (N,) (-1 for a
+    featureless example)."""
 
     question: str
     index_NF: np.ndarray
@@ -52,6 +62,56 @@ class Examples:
     def class_counts(self) -> dict[str, int]:
         q = questions.get(self.question)
         return {a: int((self.label_N == i).sum()) for i, a in enumerate(q.answers)}
+
+
+FEATURELESS_KINDS = ("flat", "rows", "columns", "blur")
+FEATURELESS_BLUR_SIGMA = (4.0, 8.0)  # pixels at 64 x 64 (scaled with the frame size)
+# The answer of a query whose frames are all featureless; same_scenery also when only one of the two is.
+FEATURELESS_ANSWER = {"visible": "no", "position": "no player", "structure": "no", "motion": "no motion",
+                      "same_scenery": "no"}
+
+
+def featureless(frame_HW3: np.ndarray, kind: str, rng: np.random.Generator) -> np.ndarray:
+    """``frame_HW3`` (uint8) with its content removed: ``flat`` (the mean colour), ``rows`` / ``columns``
+    (each row / column its mean: horizontal / vertical stripes), ``blur`` (Gaussian, sigma drawn from
+    ``FEATURELESS_BLUR_SIGMA`` per 64 pixels). The colours stay the frame's, so colour alone tells nothing."""
+    x = frame_HW3.astype(np.float32)
+    if kind == "flat":
+        y = np.broadcast_to(x.mean((0, 1)), x.shape)
+    elif kind == "rows":
+        y = np.broadcast_to(x.mean(1, keepdims=True), x.shape)
+    elif kind == "columns":
+        y = np.broadcast_to(x.mean(0, keepdims=True), x.shape)
+    elif kind == "blur":
+        sigma = rng.uniform(*FEATURELESS_BLUR_SIGMA) * x.shape[0] / 64
+        y = cv2.GaussianBlur(x, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
+    else:
+        raise ValueError(f"kind must be one of {FEATURELESS_KINDS}, got {kind!r}")
+    return np.clip(np.rint(y), 0, 255).astype(np.uint8)
+
+
+def _featureless_rows(question: str, rows: list[tuple[list[int], int, int]], frames: list[np.ndarray],
+                      bank_size: int, fraction: float, rng: np.random.Generator) -> tuple[list, list]:
+    """``round(fraction * len(rows))`` featureless examples of one question built from random real examples:
+    (new example rows (bank rows, label, -1), the new frames, appended after bank row ``bank_size - 1``)."""
+    q = questions.get(question)
+    n = round(fraction * len(rows))
+    if n == 0:
+        return [], []
+    label = q.index(FEATURELESS_ANSWER[question])
+    new_rows, new_frames = [], []
+    for k in rng.choice(len(rows), n):
+        views = list(rows[int(k)][0])
+        # same_scenery: one view (either) or both made featureless; every other question: all views
+        which = range(len(views))
+        if question == "same_scenery" and rng.random() < 2 / 3:
+            which = [int(rng.integers(len(views)))]
+        for i in which:
+            kind = FEATURELESS_KINDS[int(rng.integers(len(FEATURELESS_KINDS)))]
+            new_frames.append(featureless(frames[views[i]], kind, rng))
+            views[i] = bank_size + len(new_frames) - 1
+        new_rows.append((views, label, -1))
+    return new_rows, new_frames
 
 
 def _pair_frame(rng: np.random.Generator, f: int, T: int, stride: int, gap: tuple[int, int]) -> int | None:
@@ -129,7 +189,17 @@ def build(episodes: Sequence[Episode], cfg: JudgeConfig, seed: int,
             rows[q] += [([row_of[v] for v in views], q_idx.index(label), e) for views, label in items]
     if "same_scenery" in rows:
         rows["same_scenery"] += _cross_episode_pairs(episodes, where, len(rows["same_scenery"]), cfg, rng)
-    bank = FrameBank(np.concatenate(chunks) if chunks else np.zeros((0, size, size, 3), np.uint8), where)
+    frames = np.concatenate(chunks) if chunks else np.zeros((0, size, size, 3), np.uint8)
+    extra = []
+    for q in wanted:
+        new_rows, new_frames = _featureless_rows(q, rows[q], frames, len(frames) + len(extra),
+                                                 cfg.train.featureless_fraction, rng)
+        rows[q] += new_rows
+        extra += new_frames
+        where += [(-1, "featureless", -1)] * len(new_frames)
+    if extra:
+        frames = np.concatenate([frames, np.stack(extra)])
+    bank = FrameBank(frames, where)
     examples = {}
     for q in wanted:
         F = questions.get(q).num_frames

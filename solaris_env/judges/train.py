@@ -15,22 +15,27 @@
     solaris-engine collect --out $D/train_normal2 --episodes 120 --world normal --instances 20 --instance-offset 20 \\
         --types walkLookAway straightLineWalk chase orbit walkLook --resolution 64 --seed 1006 --test-fraction 0
         # partners far away against trees and hills (the fidelity benchmark's normal starts)
+    solaris-engine collect --out $D/train_approach --episodes 80 --world flat --instances 10 --types approach \\
+        --resolution 64 --seed 1007 --test-fraction 0   # the partner at every distance down to filling the view
+    solaris-engine collect --out $D/train_approach_normal --episodes 40 --world normal --instances 10 \\
+        --instance-offset 40 --types approach --resolution 64 --seed 1008 --test-fraction 0
     solaris-engine collect --out $D/heldout --eval --episodes 32 --resolution 64 --seed 2000
-    OUT=solaris_env/assets/judges DATA="$D/train $D/train_ttl $D/train_duet"
-    python -m solaris_env.judges.train --data $DATA --out $OUT --questions structure same_scenery
-    python -m solaris_env.judges.train --data $DATA $D/train_flat $D/train_normal $D/train_normal2 --out $OUT \\
-        --questions visible position --steps 6000 --force --heldout $D/heldout
-    python -m solaris_env.judges.train --data $DATA $D/train_tr --out $OUT --questions motion --steps 4000 \\
-        --heldout $D/heldout
+    solaris-engine collect --out $D/heldout_approach --episodes 16 --world mixed --instances 8 --instance-offset 60 \\
+        --types approach --resolution 64 --seed 2001 --test-fraction 0   # held out: scored with --heldout
+    OUT=solaris_env/assets/judges DATA="$D/train $D/train_ttl $D/train_duet" APPR="$D/train_approach $D/train_approach_normal"
+    python -m solaris_env.judges.train --data $DATA $APPR --out $OUT --questions structure same_scenery --force
+    python -m solaris_env.judges.train --data $DATA $D/train_tr $APPR --out $OUT --questions motion --steps 4000 --force
+    python -m solaris_env.judges.train --data $DATA $D/train_flat $D/train_normal $D/train_normal2 $APPR --out $OUT \\
+        --questions visible position --steps 6000 --force --heldout $D/heldout $D/heldout_approach
     # the shipped weights: ~3-8 min per probe on 2 shared CPU cores (visible/position 6000 steps: ~7 min each)
 
-Per question: build the examples (:mod:`dataset`), train a :class:`Probe` with class-balanced
+Per question: build the examples (:mod:`dataset`, featureless frames included), train a :class:`Probe` with class-balanced
 batches, left-right mirror augmentation (answers permuted by ``Question.flip_answers``) and brightness
 jitter, then write ``<out>/<question>.safetensors``. Resumable at question granularity: a question
 whose file exists is not retrained (``--force`` retrains). Seeded: data draws, init, batches and
 augmentation all derive from ``--seed``.
 
-With ``--heldout``, ``<out>/report.json`` gets, for every probe in ``<out>``, the frame-level accuracy against the
+With ``--heldout`` (one or more collects), ``<out>/report.json`` gets, for every probe in ``<out>``, the frame-level accuracy against the
 sidecar labels of the held-out episodes and, per eval type and task, the paper's episode-level
 accuracy of the probes on the held-out ground-truth videos (the paper's "GT Ep. Acc." column).
 """
@@ -153,10 +158,28 @@ def train_probe(question: str, bank: FrameBank, ex: Examples, cfg: JudgeConfig, 
 
 
 def frame_accuracy(probe: Probe, bank: FrameBank, ex: Examples) -> dict:
-    """Accuracy of a probe on labelled examples: overall, balanced (mean over classes) and per class."""
+    """Accuracy of a probe on labelled examples of real frames: overall, balanced (mean over classes) and per
+    class; the featureless examples (``episode_N == -1``, dataset.py) apart as ``featureless_accuracy``."""
     q = questions.get(ex.question)
-    if len(ex) == 0:
+    real = ex.episode_N >= 0
+    if not real.any():
         return {"examples": 0}
+    pred = _predict(probe, bank, ex)
+    out = _accuracies(q, pred[real], ex.label_N[real])
+    out["class_counts"] = Examples(ex.question, ex.index_NF[real], ex.label_N[real], ex.episode_N[real]).class_counts()
+    if (~real).any():
+        out["featureless_examples"] = int((~real).sum())
+        out["featureless_accuracy"] = float((pred[~real] == ex.label_N[~real]).mean())
+    return out
+
+
+def _accuracies(q: questions.Question, pred: np.ndarray, label: np.ndarray) -> dict:
+    per_class = {a: float((pred[label == i] == i).mean()) for i, a in enumerate(q.answers) if (label == i).any()}
+    return {"examples": len(label), "accuracy": float((pred == label).mean()),
+            "balanced_accuracy": float(np.mean(list(per_class.values()))), "per_class": per_class}
+
+
+def _predict(probe: Probe, bank: FrameBank, ex: Examples) -> np.ndarray:
     graphdef, params = nnx.split(probe)
     preds = []
     for i in range(0, len(ex), EVAL_BATCH):
@@ -164,12 +187,7 @@ def frame_accuracy(probe: Probe, bank: FrameBank, ex: Examples) -> dict:
         pad = EVAL_BATCH - len(idx)
         idx = np.concatenate([idx, np.repeat(idx[-1:], pad, 0)]) if pad else idx
         preds.append(np.asarray(predict_step(graphdef, params, bank.frames_NHW3[idx]))[:EVAL_BATCH - pad])
-    pred = np.concatenate(preds)
-    per_class = {a: float((pred[ex.label_N == i] == i).mean()) for i, a in enumerate(q.answers)
-                 if (ex.label_N == i).any()}
-    return {"examples": len(ex), "accuracy": float((pred == ex.label_N).mean()),
-            "balanced_accuracy": float(np.mean(list(per_class.values()))), "per_class": per_class,
-            "class_counts": ex.class_counts()}
+    return np.concatenate(preds)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -189,7 +207,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m solaris_env.judges.train", description=__doc__.split("\n\n")[0])
     p.add_argument("--data", required=True, nargs="+", help="solaris-engine collect output(s) with ground-truth sidecars")
     p.add_argument("--out", default=str(DEFAULT_WEIGHTS), help="directory for <question>.safetensors + report.json")
-    p.add_argument("--heldout", default=None, help="a second collect (another seed) to score the probes on")
+    p.add_argument("--heldout", default=None, nargs="+",
+                   help="collect(s) of other seeds to score the probes on (report.json)")
     p.add_argument("--questions", nargs="+", default=None, choices=sorted(questions.QUESTIONS),
                    help="train only these (default: all five)")
     p.add_argument("--steps", type=int, default=TrainConfig().steps, help="training steps per probe")
@@ -231,9 +250,9 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-def heldout_report(out: Path, names: list[str], heldout: str, cfg: JudgeConfig, seed: int, log) -> dict:
+def heldout_report(out: Path, names: list[str], heldout: list[str], cfg: JudgeConfig, seed: int, log) -> dict:
     """Frame-level accuracy per question and the paper's episode-level accuracy on held-out episodes."""
-    episodes = find_episodes(heldout)
+    episodes = [e for d in heldout for e in find_episodes(d)]
     probes = {n: load_probe(out / f"{n}.safetensors")[1] for n in names}
     bank, examples = build(episodes, cfg, seed + 1, names)
     frame = {n: frame_accuracy(probes[n], bank, examples[n]) for n in names}
@@ -245,8 +264,9 @@ def heldout_report(out: Path, names: list[str], heldout: str, cfg: JudgeConfig, 
              for r in results if not r.correct]
     for n in names:
         log(f"{n}: held-out frame accuracy {frame[n].get('accuracy', float('nan')):.4f} "
-            f"(balanced {frame[n].get('balanced_accuracy', float('nan')):.4f}, {frame[n]['examples']} examples)")
-    return {"heldout": portable_path(heldout), "episodes": len(episodes), "frame_level": frame,
+            f"(balanced {frame[n].get('balanced_accuracy', float('nan')):.4f}, {frame[n]['examples']} examples; "
+            f"featureless {frame[n].get('featureless_accuracy', float('nan')):.4f})")
+    return {"heldout": [portable_path(d) for d in heldout], "episodes": len(episodes), "frame_level": frame,
             "episode_level": per_type, "tasks": task_accuracy(per_type), "wrong_queries": wrong,
             "weights": {n: read_extra(out / f"{n}.safetensors") for n in names}}
 

@@ -1,5 +1,5 @@
 """Movement training types (docs/engine.md §5.3): walkLook, walkLookAway, straightLineWalk, chase, orbit, and
-our opt-in lookAround. Goals far away (chase's 100 blocks) are clipped to the world's playable square."""
+our opt-in lookAround and approach. Goals far away (chase's 100 blocks) are clipped to the world's playable square."""
 
 from __future__ import annotations
 
@@ -227,6 +227,40 @@ def orbit(bot: Bot) -> Actions:
 
 
 # ---------------------------------------------------------------------------------------------
+# approach (ours, opt-in): close-range views of the partner for the judges
+# ---------------------------------------------------------------------------------------------
+
+APPROACH_ROUNDS = 3
+APPROACH_STOP = (0.6, 2.0)  # the walker stops this far (blocks, feet to feet) from the watcher
+APPROACH_TIMEOUT_S = 8.0
+APPROACH_HOLD_S = (0.5, 2.0)  # face to face this long, the camera on the partner
+APPROACH_BACK_S = (1.0, 3.0)  # then backs away this long, still looking at the partner
+APPROACH_SPRINT_PROB = 0.3
+
+
+def approach(bot: Bot) -> Actions:
+    """3 rounds: the walker (shared draw) walks up to the watcher until 0.6-2 blocks apart, faces it, then backs
+    away looking at it; the watcher stands and tracks the walker. Not a reference type: the avatar seen from
+    every distance down to filling the view, as an RL seeker of ``approach_partner`` sees it."""
+    for it in range(APPROACH_ROUNDS):
+        name = f"approach_{it}"
+        yield from bot.barrier(name)
+        lower_walks = int(bot.shared_rng.random() * 2) == 0
+        if lower_walks == bot.is_lower:
+            stop = bot.rng.uniform(*APPROACH_STOP)
+            yield from bot.goto(bot.other.pos.copy(), radius=stop, timeout_s=APPROACH_TIMEOUT_S,
+                                sprint=bot.rng.random() < APPROACH_SPRINT_PROB)
+            yield from bot.track(bot.other, seconds_to_ticks(bot.rng.uniform(*APPROACH_HOLD_S)), BOT_LOOK_DPS)
+            yield from bot.track(bot.other, seconds_to_ticks(bot.rng.uniform(*APPROACH_BACK_S)), BOT_LOOK_DPS,
+                                 back=1)
+            bot.post(f"{name}_done")
+        else:
+            done = lambda n=name: bot.received(f"{n}_done") is not None  # noqa: E731
+            yield from bot.track(bot.other, seconds_to_ticks(APPROACH_TIMEOUT_S + APPROACH_HOLD_S[1]
+                                                             + APPROACH_BACK_S[1]), BOT_LOOK_DPS, until=done)
+
+
+# ---------------------------------------------------------------------------------------------
 # Episode types (docs/engine.md §5.2: typical length, spawn distance min/max)
 # ---------------------------------------------------------------------------------------------
 
@@ -237,4 +271,5 @@ EPISODE_TYPES = (
     EpisodeSpec("walkLook", "Movement", 60, 10, 15, walk_look),
     EpisodeSpec("walkLookAway", "Movement", 60, 10, 15, walk_look_away),
     EpisodeSpec("lookAround", "Movement", 30, 6, 12, look_around, in_default_mix=False),
+    EpisodeSpec("approach", "Movement", 20, 6, 12, approach, in_default_mix=False),
 )

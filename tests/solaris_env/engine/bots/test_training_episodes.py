@@ -194,7 +194,7 @@ def test_sampled_type_uses_the_shared_rng():
 
 
 def test_look_around_is_opt_in():
-    assert registry.opt_in_training_types() == ["lookAround"]
+    assert registry.opt_in_training_types() == ["approach", "lookAround"]
     assert "lookAround" not in registry.training_types() and "lookAround" not in registry.sampling_weights()
     assert registry.sampling_weights(["lookAround"]) == {"lookAround": 1.0}  # named: the only type sampled
 
@@ -215,3 +215,25 @@ def test_look_around_turns_often_at_varied_rates(world_kind):
         assert np.percentile(np.abs(yaw[turning]), 90) > 3 * np.percentile(np.abs(yaw[turning]), 10)
         assert np.count_nonzero(np.diff(turning.astype(int))) > 40  # onsets and stops
         assert max(abs(rec["pitch"]) for rec in recs) <= np.radians(30.0) + 0.2  # look_at_player may exceed a bit
+
+
+# ---------------------------------------------------------------------------------------------
+# approach (ours, opt-in)
+# ---------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("world_kind", WORLD_KINDS)
+def test_approach_comes_within_two_blocks_three_times_and_backs_off(world_kind):
+    """Three rounds: the players meet (feet <= 2 blocks apart, the stop radius) and part (>= 4 blocks) again,
+    and the walker looks at the watcher while close, so its frames show the avatar at close range."""
+    out = _run("approach", world_kind)
+    assert not out.aborted, out.abort_reason
+    xz = [np.array([[rec["x"], rec["z"]] for rec in recs]) for recs in out.trace.records]
+    n = min(len(a) for a in xz)
+    dist = np.hypot(*(xz[0][:n] - xz[1][:n]).T)
+    assert dist[0] >= 6.0 - 1e-6  # the type's spawn distance
+    close, far = dist <= 2.0, dist >= 4.0
+    meetings = np.count_nonzero(np.diff(close.astype(int)) == 1)
+    assert meetings >= 3 and far[-40:].any()
+    assert registry.EPISODES["approach"].in_default_mix is False
+
