@@ -9,7 +9,12 @@ import pytest
 
 from solaris_env.judges import questions
 from solaris_env.judges.config import JudgeConfig, TrainConfig
-from solaris_env.judges.dataset import FEATURELESS_ANSWER, FEATURELESS_KINDS, build, featureless
+from solaris_env.judges.dataset import (
+    FEATURELESS_ANSWER,
+    FEATURELESS_KINDS,
+    build,
+    featureless,
+)
 from solaris_env.judges.episodes import find_episodes
 
 

@@ -255,7 +255,7 @@ def approach(bot: Bot) -> Actions:
                                  back=1)
             bot.post(f"{name}_done")
         else:
-            done = lambda n=name: bot.received(f"{n}_done") is not None  # noqa: E731
+            done = lambda n=name: bot.received(f"{n}_done") is not None
             yield from bot.track(bot.other, seconds_to_ticks(APPROACH_TIMEOUT_S + APPROACH_HOLD_S[1]
                                                              + APPROACH_BACK_S[1]), BOT_LOOK_DPS, until=done)
 
