@@ -236,12 +236,14 @@ APPROACH_TIMEOUT_S = 8.0
 APPROACH_HOLD_S = (0.5, 2.0)  # face to face this long, the camera on the partner
 APPROACH_BACK_S = (1.0, 3.0)  # then backs away this long, still looking at the partner
 APPROACH_SPRINT_PROB = 0.3
+APPROACH_WATCH_PROB = 0.5  # the watcher faces the walker; otherwise it looks a random way (back and side views)
 
 
 def approach(bot: Bot) -> Actions:
     """3 rounds: the walker (shared draw) walks up to the watcher until 0.6-2 blocks apart, faces it, then backs
-    away looking at it; the watcher stands and tracks the walker. Not a reference type: the avatar seen from
-    every distance down to filling the view, as an RL seeker of ``approach_partner`` sees it."""
+    away looking at it; the watcher stands and either tracks the walker or turns a random way and stays so (the
+    walker then sees its back or side). Not a reference type: the avatar seen from every distance and side down
+    to filling the view, as an RL seeker of ``approach_partner`` sees a partner that stands still."""
     for it in range(APPROACH_ROUNDS):
         name = f"approach_{it}"
         yield from bot.barrier(name)
@@ -256,8 +258,14 @@ def approach(bot: Bot) -> Actions:
             bot.post(f"{name}_done")
         else:
             done = lambda n=name: bot.received(f"{n}_done") is not None
-            yield from bot.track(bot.other, seconds_to_ticks(APPROACH_TIMEOUT_S + APPROACH_HOLD_S[1]
-                                                             + APPROACH_BACK_S[1]), BOT_LOOK_DPS, until=done)
+            ticks = seconds_to_ticks(APPROACH_TIMEOUT_S + APPROACH_HOLD_S[1] + APPROACH_BACK_S[1])
+            if bot.rng.random() < APPROACH_WATCH_PROB:
+                yield from bot.track(bot.other, ticks, BOT_LOOK_DPS, until=done)
+            else:
+                yield from bot.look(bot.me.yaw + bot.rng.uniform(-math.pi, math.pi), 0.0, BOT_LOOK_DPS)
+                start = bot.tick
+                while not done() and bot.tick - start < ticks:
+                    yield from bot.idle(1)
 
 
 # ---------------------------------------------------------------------------------------------
