@@ -125,6 +125,7 @@ class TrainConfig:
     frame_stride: int = 2  # frames of each video kept for training examples (every k-th)
     pair_gap: tuple[int, int] = (10, 60)  # two-frame questions: second frame 10..60 frames later
     pairs_per_frame: int = 3  # two-frame examples drawn per kept first frame
+    still_pair_prob: float = 0.2  # motion: a kept frame also pairs with itself (a still view: "no motion")
     cross_episode_pairs: float = 0.25  # same_scenery: extra "no" pairs from two different normal worlds,
     # as a fraction of the within-episode pairs (the eval's hard "no" is a similar-looking but different view)
     brightness_jitter: float = 0.1  # frames are scaled by U(1 - j, 1 + j)
@@ -140,6 +141,7 @@ class TrainConfig:
         _require(self.frame_stride >= 1, f"frame_stride must be >= 1, got {self.frame_stride}")
         _require(1 <= self.pair_gap[0] <= self.pair_gap[1], f"pair_gap must be 1 <= lo <= hi, got {self.pair_gap}")
         _require(self.pairs_per_frame >= 1, f"pairs_per_frame must be >= 1, got {self.pairs_per_frame}")
+        _require(0.0 <= self.still_pair_prob <= 1.0, f"still_pair_prob must be in [0, 1], got {self.still_pair_prob}")
         _require(self.cross_episode_pairs >= 0, f"cross_episode_pairs must be >= 0, got {self.cross_episode_pairs}")
         _require(0.0 <= self.brightness_jitter < 1.0, f"brightness_jitter must be in [0, 1), got {self.brightness_jitter}")
         _require(0.0 <= self.featureless_fraction <= 1.0,

@@ -7,7 +7,9 @@ bank indices of its frames (in the order the probe sees them) and the label inde
 
 Which frames feed which question:
 - ``visible``, ``position``, ``structure``: every kept frame of every bot.
-- ``motion``: a kept frame and one ``pair_gap`` frames later of the same bot.
+- ``motion``: a kept frame and one ``pair_gap`` frames later of the same bot; with ``still_pair_prob`` also the
+  frame with itself (labelled like any pair: "no motion" when the partner shows), because an agent that stands
+  still, or a frozen dream, shows the probe two identical frames.
 - ``same_scenery``: normal-world episodes only (on a superflat world every view shows the same
   sky and grass, so the question has no visual answer): a kept frame of one bot with the other bot's
   frame at the same tick (half of the pairs, as the eval query) or ``pair_gap`` away, or with the
@@ -146,6 +148,8 @@ def episode_examples(ep: Episode, num_frames: int, cfg: JudgeConfig, rng: np.ran
                 f2 = _pair_frame(rng, f, num_frames, tc.frame_stride, tc.pair_gap)
                 if f2 is not None:
                     add("motion", [(bot, f), (bot, f2)], L.motion_label(gt, bot, f, f2, lc))
+            if "motion" in out and rng.random() < tc.still_pair_prob:
+                add("motion", [(bot, f), (bot, f)], L.motion_label(gt, bot, f, f, lc))
     if "same_scenery" in out and gt.get("world_type") == "normal" and len(bots) >= 2:
         for f in kept:
             for _ in range(tc.pairs_per_frame):

@@ -75,3 +75,15 @@ def test_build_adds_featureless_examples_and_keeps_the_real_ones(collected):
             assert made_up.all()
     with pytest.raises(ValueError, match="featureless_fraction must be in"):
         TrainConfig(featureless_fraction=1.5)
+
+
+def test_motion_has_still_pairs_labelled_no_motion(collected):
+    episodes = find_episodes(collected)
+    cfg = JudgeConfig(train=replace(TrainConfig(), featureless_fraction=0.0, still_pair_prob=1.0))
+    _, ex = build(episodes, cfg, seed=0, wanted=["motion"])
+    m = ex["motion"]
+    still = m.index_NF[:, 0] == m.index_NF[:, 1]
+    assert still.sum() > 10
+    assert (m.label_N[still] == questions.get("motion").index("no motion")).all()
+    _, ex0 = build(episodes, JudgeConfig(train=replace(cfg.train, still_pair_prob=0.0)), seed=0, wanted=["motion"])
+    assert not (ex0["motion"].index_NF[:, 0] == ex0["motion"].index_NF[:, 1]).any()
