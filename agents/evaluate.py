@@ -44,7 +44,7 @@ from solaris_env.paths import portable_path, portable_text
 # The scripted policies of each task, from useless to good (the PPO checkpoints come on top): the face task's
 # seekers turn toward the partner, the approach task's also walk to it once it is centred.
 DEFAULT_POLICIES = {
-    "face_partner": ["noop", "random", "spin:5", "spin:15", "spin:30", "seeker:0", "seeker:0.1", "seeker:0.25",
+    "face_partner": ["noop", "random", "spin:5", "spin:10", "spin:15", "seeker:0", "seeker:0.1", "seeker:0.25",
                      "seeker:0.5", "seeker:0.75", "seeker:0.9", "seeker-walk:0.25"],
     "approach_partner": ["noop", "random", "spin:15", "seeker:0", "seeker-walk:0", "seeker-walk:0.25",
                          "seeker-walk:0.5", "seeker-walk:0.75"],
