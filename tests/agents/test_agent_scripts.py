@@ -151,6 +151,8 @@ def test_script_arguments_are_checked():
         args = parse_args(evaluate.Args, ["--task", task])
         assert args.policies == evaluate.DEFAULT_POLICIES[task] and len(set(args.policies)) >= 7
         assert Path(args.out).name == f"policy_eval_{task}.json"
+        assert [make_policy(spec).name for spec in args.policies] == args.policies  # every spec builds
+    assert len(evaluate.DEFAULT_POLICIES["face_partner"]) >= 12  # the count without PPO checkpoints
     assert any(p.startswith("seeker-walk") for p in evaluate.DEFAULT_POLICIES["approach_partner"])
     undefaulted = sorted(set(JUDGED_TASKS) - set(evaluate.DEFAULT_POLICIES))
     if undefaulted:
