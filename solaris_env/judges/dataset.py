@@ -92,7 +92,7 @@ def featureless(frame_HW3: np.ndarray, kind: str, rng: np.random.Generator) -> n
     return np.clip(np.rint(y), 0, 255).astype(np.uint8)
 
 
-def _featureless_rows(question: str, rows: list[tuple[list[int], int, int]], frames: list[np.ndarray],
+def _featureless_rows(question: str, rows: list[tuple[list[int], int, int]], frames_NHW3: np.ndarray,
                       bank_size: int, fraction: float, rng: np.random.Generator) -> tuple[list, list]:
     """``round(fraction * len(rows))`` featureless examples of one question built from random real examples:
     (new example rows (bank rows, label, -1), the new frames, appended after bank row ``bank_size - 1``)."""
@@ -110,7 +110,7 @@ def _featureless_rows(question: str, rows: list[tuple[list[int], int, int]], fra
             which = [int(rng.integers(len(views)))]
         for i in which:
             kind = FEATURELESS_KINDS[int(rng.integers(len(FEATURELESS_KINDS)))]
-            new_frames.append(featureless(frames[views[i]], kind, rng))
+            new_frames.append(featureless(frames_NHW3[views[i]], kind, rng))
             views[i] = bank_size + len(new_frames) - 1
         new_rows.append((views, label, -1))
     return new_rows, new_frames

@@ -164,19 +164,16 @@ def frame_accuracy(probe: Probe, bank: FrameBank, ex: Examples) -> dict:
     real = ex.episode_N >= 0
     if not real.any():
         return {"examples": 0}
-    pred = _predict(probe, bank, ex)
-    out = _accuracies(q, pred[real], ex.label_N[real])
-    out["class_counts"] = Examples(ex.question, ex.index_NF[real], ex.label_N[real], ex.episode_N[real]).class_counts()
+    pred_N = _predict(probe, bank, ex)
+    pred, label = pred_N[real], ex.label_N[real]
+    per_class = {a: float((pred[label == i] == i).mean()) for i, a in enumerate(q.answers) if (label == i).any()}
+    out = {"examples": len(label), "accuracy": float((pred == label).mean()),
+           "balanced_accuracy": float(np.mean(list(per_class.values()))), "per_class": per_class,
+           "class_counts": {a: int((label == i).sum()) for i, a in enumerate(q.answers)}}
     if (~real).any():
         out["featureless_examples"] = int((~real).sum())
-        out["featureless_accuracy"] = float((pred[~real] == ex.label_N[~real]).mean())
+        out["featureless_accuracy"] = float((pred_N[~real] == ex.label_N[~real]).mean())
     return out
-
-
-def _accuracies(q: questions.Question, pred: np.ndarray, label: np.ndarray) -> dict:
-    per_class = {a: float((pred[label == i] == i).mean()) for i, a in enumerate(q.answers) if (label == i).any()}
-    return {"examples": len(label), "accuracy": float((pred == label).mean()),
-            "balanced_accuracy": float(np.mean(list(per_class.values()))), "per_class": per_class}
 
 
 def _predict(probe: Probe, bank: FrameBank, ex: Examples) -> np.ndarray:

@@ -224,8 +224,7 @@ def test_look_around_turns_often_at_varied_rates(world_kind):
 
 @pytest.mark.parametrize("world_kind", WORLD_KINDS)
 def test_approach_comes_within_two_blocks_three_times_and_backs_off(world_kind):
-    """Three rounds: the players meet (feet <= 2 blocks apart, the stop radius) and part (>= 4 blocks) again,
-    and the walker looks at the watcher while close, so its frames show the avatar at close range."""
+    """Three rounds: the players meet (feet <= 2 blocks apart, the stop radius) and part (>= 4 blocks) again."""
     out = _run("approach", world_kind)
     assert not out.aborted, out.abort_reason
     xz = [np.array([[rec["x"], rec["z"]] for rec in recs]) for recs in out.trace.records]
