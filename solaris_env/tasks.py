@@ -291,10 +291,13 @@ class FacePartnerTask(PartnerTask):
 
 class ApproachPartnerTask(PartnerTask):
     """+1 for a step after which the player is clearly closer to the partner than ``gap`` steps before, -1
-    when clearly farther, 0 otherwise; only while the partner is on screen in one of the two frames.
+    when clearly farther, 0 otherwise; only while the partner is on screen.
 
-    Judge: the ``visible`` probe says "yes" for either frame and the ``motion`` probe, shown (the frame
-    ``gap`` steps ago, the frame now), answers "closer" / "farther". Truth: the answer the motion probe was
+    Judge: the ``visible`` probe says "yes" for both frames and the ``motion`` probe, shown (the frame
+    ``gap`` steps ago, the frame now), answers "closer" / "farther". Both, because the truth's rule below needs
+    the partner's screen position in both frames: a partner that leaves the screen has no motion answer, and
+    on such pairs (a close avatar, then none) the probe, never trained on them, said "farther" (63 false -1s
+    on 564 steps of seeker-walk episodes, docs/evaluation.md). Truth: the answer the motion probe was
     trained to give, by its labelling rule (``judges.labels.motion_class``): the partner is clearly visible (at
     least ``min_visible_pixels``) in either frame and has a screen position in both (its avatar's centroid, or,
     at ``motion_far_distance`` blocks or more, the projection of its body centre); the distance's log ratio
@@ -333,7 +336,8 @@ class ApproachPartnerTask(PartnerTask):
         else:
             motion = np.array([self._motion_truth(a, b) for a, b in zip(then, now)])
             closer_P, farther_P = motion == "closer", motion == "farther"
-        seen_P = visible_then_P | visible_now_P
+        # judge: on screen in both frames (the class doc); truth: the label rule itself needs both positions
+        seen_P = visible_then_P & visible_now_P if self.source == "judge" else visible_then_P | visible_now_P
         self._history = (self._history + [(now, visible_now_P)])[-self.gap:]  # next step compares with t+1-gap
         rewards_P = np.where(seen_P, closer_P.astype(np.float32) - farther_P.astype(np.float32), 0.0)
         return TaskStep(rewards_P.astype(np.float32), np.zeros(p, bool))

@@ -8,6 +8,12 @@ for either order). The last map is flattened (keeping where on screen things are
 Dense layer and the answer logits ``logits_BA`` (A = the question's answers, in ``Question.answers``
 order).
 
+A two-frame early-fusion probe whose question has ``reverse_answers`` (``motion``) is equivariant to playing
+the pair backwards: it runs the network on (a, b) and on (b, a) and averages the first logits with the second
+ones permuted by ``Question.reverse_permutation`` (closer <-> farther, left <-> right). So answer(b, a) is the
+reversed answer(a, b) for every input, in training and in use, and two identical frames give "closer" and
+"farther" the same logit: a still view can no longer read as one direction only.
+
 Weights travel as safetensors with the configs in the metadata (:func:`save_probe`,
 :func:`load_probe`), written atomically.
 """
@@ -39,15 +45,26 @@ class Probe(nnx.Module):
         num_frames: frames per query (F).
         num_answers: logits (A).
         rngs: parameter initialisation.
+        reverse_perm: for a two-frame early-fusion probe, the answer permutation of the reversed pair
+            (``Question.reverse_permutation``): the probe is made equivariant to the frame order (module doc).
     """
 
-    def __init__(self, cfg: ProbeConfig, num_frames: int, num_answers: int, *, rngs: nnx.Rngs):
+    def __init__(self, cfg: ProbeConfig, num_frames: int, num_answers: int, *, rngs: nnx.Rngs,
+                 reverse_perm: tuple[int, ...] | None = None):
         if num_frames < 1 or num_answers < 2:
             raise ValueError(f"need num_frames >= 1 and num_answers >= 2, got {num_frames}, {num_answers}")
         if cfg.fusion == "late" and num_frames != 2:
             raise ValueError(f"late fusion compares two frames, got num_frames={num_frames}")
+        if reverse_perm is not None:
+            if num_frames != 2 or cfg.fusion != "early":
+                raise ValueError(f"reverse_perm needs a two-frame early-fusion probe, got num_frames={num_frames}, "
+                                 f"fusion={cfg.fusion!r}")
+            if sorted(reverse_perm) != list(range(num_answers)):
+                raise ValueError(f"reverse_perm must be a permutation of range({num_answers}), got {reverse_perm}")
+            reverse_perm = tuple(int(i) for i in reverse_perm)
         self.cfg = cfg
         self.num_frames = num_frames
+        self.reverse_perm = reverse_perm
         late = cfg.fusion == "late"
         widths = (3 if late else 3 * num_frames, *cfg.channels)
         k = cfg.kernel_size
@@ -70,9 +87,17 @@ class Probe(nnx.Module):
             f_BFhwD = self._encode(x.reshape(B * F, H, W, C)).reshape(B, F, *self._feature_shape())
             a, b = f_BFhwD[:, 0], f_BFhwD[:, 1]
             f_BhwD = jnp.concatenate([a + b, jnp.abs(a - b)], axis=-1)
-        else:
-            f_BhwD = self._encode(jnp.transpose(x, (0, 2, 3, 1, 4)).reshape(B, H, W, F * C))
-        h_BD = jax.nn.relu(self.hidden(f_BhwD.reshape(B, -1)))
+            return self._logits(f_BhwD)
+        if self.reverse_perm is not None:  # both orders in one batch: (a, b) then (b, a)
+            x = jnp.concatenate([x, x[:, ::-1]], axis=0)
+        logits = self._logits(self._encode(jnp.transpose(x, (0, 2, 3, 1, 4)).reshape(len(x), H, W, F * C)))
+        if self.reverse_perm is None:
+            return logits
+        forward_BA, backward_BA = logits[:B], logits[B:]
+        return 0.5 * (forward_BA + backward_BA[:, jnp.asarray(self.reverse_perm)])
+
+    def _logits(self, f_BhwD: jax.Array) -> jax.Array:
+        h_BD = jax.nn.relu(self.hidden(f_BhwD.reshape(len(f_BhwD), -1)))
         return self.head(h_BD)
 
     def _feature_shape(self) -> tuple[int, int, int]:
@@ -83,7 +108,13 @@ class Probe(nnx.Module):
 def new_probe(question: str, cfg: ProbeConfig, seed: int) -> Probe:
     """A freshly initialised probe for ``question`` (use ``JudgeConfig.probe_for`` to pick its fusion)."""
     q = questions.get(question)
-    return Probe(cfg, q.num_frames, q.num_answers, rngs=nnx.Rngs(seed))
+    return Probe(cfg, q.num_frames, q.num_answers, rngs=nnx.Rngs(seed), reverse_perm=_reverse_perm(q, cfg))
+
+
+def _reverse_perm(q: questions.Question, cfg: ProbeConfig) -> tuple[int, ...] | None:
+    """The reversal permutation the probe of ``q`` is built with: the question's, for an early-fusion probe
+    (late fusion already answers both orders alike)."""
+    return q.reverse_permutation() if cfg.fusion == "early" else None
 
 
 def num_params(probe: Probe) -> int:
@@ -140,7 +171,8 @@ def load_probe(path: str | Path) -> tuple[str, Probe, dict]:
     meta = read_metadata(path)
     cfg = config_from_dict(ProbeConfig, meta["probe_config"], f"{path}: probe_config")
     q = questions.get(meta["question"])
-    abstract = nnx.eval_shape(lambda: Probe(cfg, q.num_frames, q.num_answers, rngs=nnx.Rngs(0)))
+    abstract = nnx.eval_shape(lambda: Probe(cfg, q.num_frames, q.num_answers, rngs=nnx.Rngs(0),
+                                            reverse_perm=_reverse_perm(q, cfg)))
     graphdef, state = nnx.split(abstract)
     values = load_file(str(path))
     expected = {"/".join(map(str, path)): tuple((v.get_value() if isinstance(v, nnx.Variable) else v).shape)

@@ -5,7 +5,11 @@ is asked to answer with), and which prompt of ``eval_protocol.PROMPTS`` a VLM ju
 of a question outputs one logit per answer, in ``answers`` order.
 
 ``flip_answers`` says how an answer changes when every image is mirrored left-right (the training
-augmentation): screen left and right swap, nothing else changes.
+augmentation): screen left and right swap, nothing else changes. ``reverse_answers`` says how the answer of a
+two-image question changes when the two images swap order: played backwards, a partner coming closer goes
+farther and one moving left moves right. The probe of such a question scores both orders at once and so is
+exactly consistent with itself: on two identical images "closer" and "farther" get the same probability
+(``probe.Probe``).
 """
 
 from __future__ import annotations
@@ -25,6 +29,8 @@ class Question:
         num_frames: images per query (two-frame questions see them in order).
         prompt_key: key into ``eval_protocol.PROMPTS`` (the paper's exact prompt).
         flip_answers: answer -> answer after mirroring the images left-right (identity if absent).
+        reverse_answers: answer -> answer after swapping the two images (two-image questions whose answer
+            depends on the order; empty: the order does not matter or the question has one image).
     """
 
     name: str
@@ -32,6 +38,7 @@ class Question:
     num_frames: int
     prompt_key: str
     flip_answers: tuple[tuple[str, str], ...] = ()
+    reverse_answers: tuple[tuple[str, str], ...] = ()
 
     @property
     def prompt(self) -> str:
@@ -53,13 +60,22 @@ class Question:
         swap = dict(self.flip_answers)
         return tuple(self.index(swap.get(a, a)) for a in self.answers)
 
+    def reverse_permutation(self) -> tuple[int, ...] | None:
+        """perm[i] = index of the answer that answer i becomes when the two images swap order; None when the
+        question has no ``reverse_answers``."""
+        if not self.reverse_answers:
+            return None
+        swap = dict(self.reverse_answers)
+        return tuple(self.index(swap.get(a, a)) for a in self.answers)
+
 
 _LR = (("left", "right"), ("right", "left"))
+_BACKWARDS = (("closer", "farther"), ("farther", "closer"), *_LR)
 
 QUESTIONS: dict[str, Question] = {q.name: q for q in (
     Question("visible", ("no", "yes"), 1, "one_looks_away"),
     Question("position", ("left", "center", "right", "no player"), 1, "rotation", _LR),
-    Question("motion", ("closer", "farther", "left", "right", "no motion"), 2, "translation", _LR),
+    Question("motion", ("closer", "farther", "left", "right", "no motion"), 2, "translation", _LR, _BACKWARDS),
     Question("structure", ("no", "yes"), 1, "structure"),
     Question("same_scenery", ("no", "yes"), 2, "turn_to_look"),
 )}

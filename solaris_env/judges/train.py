@@ -19,13 +19,16 @@
         --resolution 64 --seed 1007 --test-fraction 0   # the partner at every distance down to filling the view
     solaris-engine collect --out $D/train_approach_normal --episodes 40 --world normal --instances 10 \\
         --instance-offset 40 --types approach --resolution 64 --seed 1008 --test-fraction 0
+    solaris-engine collect --out $D/train_redsand --episodes 60 --world flat --instances 1 --instance-offset 4 \\
+        --types lookAround walkLook --resolution 64 --seed 1009 --test-fraction 0   # red sand only (instance 4)
     solaris-engine collect --out $D/heldout --eval --episodes 32 --resolution 64 --seed 2000
     solaris-engine collect --out $D/heldout_approach --episodes 16 --world mixed --instances 8 --instance-offset 60 \\
         --types approach --resolution 64 --seed 2001 --test-fraction 0   # held out: scored with --heldout
     OUT=solaris_env/assets/judges DATA="$D/train $D/train_ttl $D/train_duet" APPR="$D/train_approach $D/train_approach_normal"
     python -m solaris_env.judges.train --data $DATA $APPR --out $OUT --questions structure same_scenery --force
     python -m solaris_env.judges.train --data $DATA $D/train_tr $APPR --out $OUT --questions motion --steps 4000 --force
-    python -m solaris_env.judges.train --data $DATA $D/train_flat $D/train_normal $D/train_normal2 $APPR --out $OUT \\
+    python -m solaris_env.judges.train --data $DATA $D/train_flat $D/train_normal $D/train_normal2 $APPR \\
+        $D/train_redsand --out $OUT \\
         --questions visible position --steps 6000 --force --heldout $D/heldout $D/heldout_approach
     # the shipped weights: ~3-8 min per probe on 2 shared CPU cores (visible/position 6000 steps: ~7 min each)
 

@@ -195,6 +195,22 @@ def test_approach_partner_truth_is_the_motion_judges_labelling_rule():
     assert reward((1.0, 0.5, 0), (0.5, 0.5, 0)) == 0.0  # pressed against the partner, no avatar on screen
 
 
+def test_approach_partner_judge_scores_only_pairs_with_the_partner_on_both_screens(real):
+    """A partner seen, then gone off screen (Alpha turned away) earns 0 whatever the motion probe says of the
+    pair: the truth's rule has no motion answer without the partner's position in both frames."""
+    from solaris_env.tasks import shared_judge
+
+    env = real(resolution=JUDGE_SIZE, ticks_per_step=4)
+    obs, _ = env.reset(seed=0)  # facing each other 6-10 blocks apart
+    seen = np.stack([obs[a] for a in env.possible_agents])
+    obs = turn_fully(env, 180.0)[0]
+    gone = np.stack([obs[a] for a in env.possible_agents])
+    assert shared_judge().answer("visible", np.stack([seen[0], gone[0]])) == ["yes", "no"]
+    task = ApproachPartnerTask(source="judge", gap=1)
+    task.reset(seen)
+    assert task.step(gone[:, None], [noop(), noop()]).rewards_P[0] == 0.0
+
+
 def test_registry_names_and_sources():
     for name, cls in JUDGED_TASKS.items():
         judge, truth = make_task(name), make_task(f"{name}_truth")

@@ -151,3 +151,31 @@ def test_late_fusion_answers_the_same_for_either_order():
         new_probe("visible", late, seed=0)
     with pytest.raises(ValueError, match="fusion must be one of"):
         ProbeConfig(fusion="middle")
+
+
+def test_motion_probe_is_equivariant_to_playing_the_pair_backwards(tmp_path):
+    """answer(b, a) is the reversed answer(a, b) (closer <-> farther, left <-> right) for any weights and
+    inputs, also after a save / load; identical frames tie closer with farther and left with right."""
+    from flax import nnx
+
+    from solaris_env.judges.probe import Probe
+
+    q = questions.get("motion")
+    perm = q.reverse_permutation()
+    assert [q.answers[i] for i in perm] == ["farther", "closer", "right", "left", "no motion"]
+    assert questions.get("visible").reverse_permutation() is None
+    a, b = frames(6, size=16, seed=3), frames(6, size=16, seed=4)
+    for probe in (new_probe("motion", SMALL, seed=0),
+                  load_probe(save_probe(tmp_path / "motion.safetensors", "motion", new_probe("motion", SMALL, 1)))[1]):
+        assert probe.reverse_perm == perm
+        judge = Judge({"motion": probe})
+        np.testing.assert_allclose(judge.probabilities("motion", b, a), judge.probabilities("motion", a, b)[:, perm],
+                                   rtol=1e-5, atol=1e-6)
+        still = judge.probabilities("motion", a, a)
+        i = {w: q.index(w) for w in q.answers}
+        np.testing.assert_allclose(still[:, i["closer"]], still[:, i["farther"]], rtol=1e-5, atol=1e-7)
+        np.testing.assert_allclose(still[:, i["left"]], still[:, i["right"]], rtol=1e-5, atol=1e-7)
+    with pytest.raises(ValueError, match="reverse_perm needs a two-frame early-fusion probe"):
+        Probe(SMALL, 1, 2, rngs=nnx.Rngs(0), reverse_perm=(1, 0))
+    with pytest.raises(ValueError, match="reverse_perm must be a permutation"):
+        Probe(SMALL, 2, 5, rngs=nnx.Rngs(0), reverse_perm=(0, 0, 1, 2, 3))

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from solaris_env.judges import labels as L
+from solaris_env.judges import questions
 from solaris_env.judges.config import LabelConfig
 from solaris_env.judges.questions import for_prompt_key
 from solaris_env.judges.scoring import query_views
@@ -104,6 +105,9 @@ def test_motion_label_directions_still_and_ambiguous():
                  distance=[d0, d0, d0, closer, farther, d0, d0 * math.exp(2.9 * CFG.motion_log_distance_threshold), d0])
     got = [L.motion_label(gt, "Alpha", 0, f) for f in range(1, 8)]
     assert got == ["right", "left", "closer", "farther", "no motion", None, None]  # mixed, then not visible
+    # played backwards, every label is the reversed one: what the motion probe's equivariance assumes
+    back = dict(questions.get("motion").reverse_answers)
+    assert [L.motion_label(gt, "Alpha", f, 0) for f in range(1, 8)] == [back.get(a, a) if a else a for a in got]
 
 
 def test_structure_label_projects_placed_blocks():
