@@ -330,16 +330,12 @@ class ApproachPartnerTask(PartnerTask):
         p = frames_PkHW3.shape[0]
         then, visible_then_P = self._history[0]
         now, visible_now_P = self._observe(frames_PkHW3[:, -1], truth)
-        if self.source == "judge":
-            motion = np.array(self.judge.answer("motion", then, now))
-            closer_P, farther_P = motion == "closer", motion == "farther"
-        else:
-            motion = np.array([self._motion_truth(a, b) for a, b in zip(then, now)])
-            closer_P, farther_P = motion == "closer", motion == "farther"
-        # judge: on screen in both frames (the class doc); truth: the label rule itself needs both positions
-        seen_P = visible_then_P & visible_now_P if self.source == "judge" else visible_then_P | visible_now_P
         self._history = (self._history + [(now, visible_now_P)])[-self.gap:]  # next step compares with t+1-gap
-        rewards_P = np.where(seen_P, closer_P.astype(np.float32) - farther_P.astype(np.float32), 0.0)
+        if self.source == "judge":  # only with the partner on screen in both frames (the class doc)
+            motion_P = np.where(visible_then_P & visible_now_P, self.judge.answer("motion", then, now), None)
+        else:  # None unless the partner is on screen: the label rule
+            motion_P = np.array([self._motion_truth(a, b) for a, b in zip(then, now)])
+        rewards_P = (motion_P == "closer").astype(np.float32) - (motion_P == "farther").astype(np.float32)
         return TaskStep(rewards_P.astype(np.float32), np.zeros(p, bool))
 
     def _observe(self, frames_PHW3: np.ndarray, truth) -> tuple[Any, np.ndarray]:

@@ -57,15 +57,15 @@ class Question:
 
     def flip_permutation(self) -> tuple[int, ...]:
         """perm[i] = index of the answer that answer i becomes under a left-right mirror."""
-        swap = dict(self.flip_answers)
-        return tuple(self.index(swap.get(a, a)) for a in self.answers)
+        return self._permutation(self.flip_answers)
 
     def reverse_permutation(self) -> tuple[int, ...] | None:
         """perm[i] = index of the answer that answer i becomes when the two images swap order; None when the
         question has no ``reverse_answers``."""
-        if not self.reverse_answers:
-            return None
-        swap = dict(self.reverse_answers)
+        return self._permutation(self.reverse_answers) if self.reverse_answers else None
+
+    def _permutation(self, pairs: tuple[tuple[str, str], ...]) -> tuple[int, ...]:
+        swap = dict(pairs)
         return tuple(self.index(swap.get(a, a)) for a in self.answers)
 
 
