@@ -68,20 +68,30 @@ def ground_truth_latents(model: WorldModel, obs_BTPHW3: np.ndarray, batch: int =
     return lat.reshape((b, p) + lat.shape[1:]).astype(np.float32)
 
 
-def vae_reconstruction(model: WorldModel, obs_BTPHW3: np.ndarray, batch: int = 8) -> np.ndarray:
-    """Decode of the encoded ground truth, uint8 (B, T, P, H, W, 3): what a DiT that predicted every latent
-    exactly would show, so the PSNR of this is the ceiling of any rollout of the model."""
+def vae_reconstructor(model: WorldModel, batch: int = 8):
+    """-> ``reconstruct(obs uint8 (B, T, P, H, W, 3)) -> uint8`` of the same shape: the decode of the encoded
+    ground truth, i.e. what a DiT that predicted every latent exactly would show (the ceiling of any rollout
+    of the model). The encoder and decoder are jitted once; each new (videos, T) shape compiles once."""
     from flax import nnx
 
     from training.vae import make_reconstruct
 
     graphdef, params, rest = nnx.split(model.modules()[1], nnx.Param, ...)
-    reconstruct = make_reconstruct(graphdef)
-    b, t, p = obs_BTPHW3.shape[:3]
-    videos = np.swapaxes(obs_BTPHW3, 1, 2).reshape((b * p, t) + obs_BTPHW3.shape[3:])  # (B*P, T, H, W, 3)
-    rec = np.concatenate([np.asarray(reconstruct(params, rest, jnp.asarray(videos[i:i + batch])))
-                          for i in range(0, len(videos), batch)])
-    return np.swapaxes(rec.reshape((b, p) + rec.shape[1:]), 1, 2)
+    jitted = make_reconstruct(graphdef)
+
+    def reconstruct(obs_BTPHW3: np.ndarray) -> np.ndarray:
+        b, t, p = obs_BTPHW3.shape[:3]
+        videos = np.swapaxes(obs_BTPHW3, 1, 2).reshape((b * p, t) + obs_BTPHW3.shape[3:])  # (B*P, T, H, W, 3)
+        rec = np.concatenate([np.asarray(jitted(params, rest, jnp.asarray(videos[i:i + batch])))
+                              for i in range(0, len(videos), batch)])
+        return np.swapaxes(rec.reshape((b, p) + rec.shape[1:]), 1, 2)
+
+    return reconstruct
+
+
+def vae_reconstruction(model: WorldModel, obs_BTPHW3: np.ndarray, batch: int = 8) -> np.ndarray:
+    """``vae_reconstructor(model, batch)(obs_BTPHW3)``, for one call."""
+    return vae_reconstructor(model, batch)(obs_BTPHW3)
 
 
 def psnr_per_frame(a_BTPHW3: np.ndarray, b_BTPHW3: np.ndarray) -> np.ndarray:
