@@ -85,11 +85,18 @@ def heldout_windows(data_dir: str | Path, window: int, windows: int, k: int) -> 
     return {s: np.stack(w) for s, w in sorted(out.items())}
 
 
-def psnr_by_surface(reconstruct: Reconstruct, windows: dict[str, np.ndarray], batch: int = 4
-                    ) -> tuple[dict[str, float], dict[str, np.ndarray]]:
-    """PSNR (dB, the MSE pooled over a surface's pixels) per surface, and per surface the reconstruction of
-    the first window's middle frame (both players) for the contact sheet."""
+def _psnr(sq: float | np.ndarray, count: int | np.ndarray):
+    return np.round(10.0 * np.log10(255.0 ** 2 / np.maximum(np.asarray(sq) / count, 1e-12)), 2)
+
+
+def psnr_by_surface(reconstruct: Reconstruct, windows: dict[str, np.ndarray], k: int, batch: int = 4
+                    ) -> tuple[dict[str, float], list[float], dict[str, np.ndarray]]:
+    """PSNR (dB, the MSE pooled over the pixels) per surface; per latent of the window (the first frame,
+    then each chunk of ``k`` frames) over all surfaces, which shows a decoder that degrades along a stream;
+    and per surface the reconstruction of the first window's middle frame (both players) for the contact
+    sheet."""
     psnr, sample = {}, {}
+    sq_by_frame, n_by_frame = 0.0, 0
     for surface, w in windows.items():
         sq, count = 0.0, 0
         for i in range(0, len(w), batch):
@@ -98,11 +105,14 @@ def psnr_by_surface(reconstruct: Reconstruct, windows: dict[str, np.ndarray], ba
             if i == 0:
                 sample[surface] = rec[0, rec.shape[1] // 2]
             diff = rec.astype(np.float64) - chunk.astype(np.float64)
-            sq += float(np.sum(diff * diff))
+            per_frame = np.sum(diff * diff, axis=(0, 2, 3, 4, 5))  # (T,)
+            sq += float(per_frame.sum())
             count += diff.size
-        mse = sq / count
-        psnr[surface] = round(float(10.0 * np.log10(255.0 ** 2 / max(mse, 1e-12))), 2)
-    return psnr, sample
+            sq_by_frame = sq_by_frame + per_frame
+            n_by_frame += diff.size // diff.shape[1]
+        psnr[surface] = float(_psnr(sq, count))
+    by_latent = [sq_by_frame[:1]] + [sq_by_frame[1 + k * j:1 + k * (j + 1)] for j in range((len(sq_by_frame) - 1) // k)]
+    return psnr, [float(_psnr(s.sum(), n_by_frame * len(s))) for s in by_latent], sample
 
 
 # ---------------------------------------------------------------------------------------------
@@ -170,14 +180,16 @@ def judge_reconstructions(reconstruct: Reconstruct, segments, judge, original=No
 # ---------------------------------------------------------------------------------------------
 
 
-def score_model(reconstruct: Reconstruct, windows: dict[str, np.ndarray], segments, judge, original) -> dict:
+def score_model(reconstruct: Reconstruct, windows: dict[str, np.ndarray], k: int, segments, judge, original
+                ) -> dict:
     """Both parts for one reconstruction, with the verdicts against the targets."""
     t0 = time.perf_counter()
-    psnr, sample = psnr_by_surface(reconstruct, windows)
+    psnr, by_latent, sample = psnr_by_surface(reconstruct, windows, k)
     psnr_s = time.perf_counter() - t0
     judged = judge_reconstructions(reconstruct, segments, judge, original)
     return {
         "psnr_db_by_surface": psnr, "psnr_db_min_surface": min(psnr.values()), "psnr_seconds": round(psnr_s, 1),
+        "psnr_db_by_latent": by_latent,
         "judges": judged,
         "meets": {"psnr": min(psnr.values()) >= TARGET_PSNR_DB,
                   "judges": judged["max_abs_difference_points"] <= TARGET_JUDGE_POINTS},
@@ -226,7 +238,7 @@ def run(models: dict[str, Reconstruct], heldout: str | Path, eval_data: str | Pa
     for name, reconstruct in models.items():
         print(f"{name}: {sum(len(w) for w in held.values())} held-out windows, {len(segments)} eval episodes",
               file=sys.stderr, flush=True)
-        row = score_model(reconstruct, held, segments, judge, original)
+        row = score_model(reconstruct, held, k, segments, judge, original)
         samples[name] = row.pop("_sample")
         rows[name] = row
     result = {

@@ -62,16 +62,18 @@ def test_heldout_windows_are_whole_latent_chunks_of_both_players(heldout):
 def test_a_perfect_reconstruction_meets_both_targets_and_a_grey_one_neither(heldout, segments, judge):
     windows = AT.heldout_windows(heldout, window=9, windows=2, k=4)
     original = judge_episodes(judge, [s.episode for s in segments])
-    perfect = AT.score_model(identity, windows, segments, judge, original)
+    perfect = AT.score_model(identity, windows, 4, segments, judge, original)
     assert perfect["psnr_db_min_surface"] > 100 and perfect["meets"] == {"psnr": True, "judges": True}
+    assert len(perfect["psnr_db_by_latent"]) == 3 and min(perfect["psnr_db_by_latent"]) > 100  # frame 0, 2 chunks
     assert perfect["judges"]["max_abs_difference_points"] == 0
     assert all(q["same_answer"] == 1.0 for q in perfect["judges"]["answer_agreement"].values())
     assert perfect["judges"]["tasks_pct"]["original"] == perfect["judges"]["tasks_pct"]["reconstructed"]
     np.testing.assert_array_equal(perfect["_sample"][next(iter(windows))],
                                   windows[next(iter(windows))][0, 4])
 
-    grey = AT.score_model(flat_grey, windows, segments, judge, original)
+    grey = AT.score_model(flat_grey, windows, 4, segments, judge, original)
     assert grey["psnr_db_min_surface"] < 20 and not grey["meets"]["psnr"]
+    assert len(grey["psnr_db_by_latent"]) == 3 and max(grey["psnr_db_by_latent"]) < 20
     agreement = grey["judges"]["answer_agreement"]
     assert sum(q["queries"] for q in agreement.values()) == len(original)
     # the judges answer a flat frame differently from an engine view on some queries
@@ -94,3 +96,16 @@ def test_the_cli_scores_a_random_model_and_writes_json_and_png(heldout, eval_dat
 def test_frames_of_another_size_fail_naming_the_flag(heldout, eval_data, tmp_path):
     with pytest.raises(ValueError, match="--heldout .*collect with --resolution 64"):
         AT.run({"x": identity}, heldout, eval_data, 9, 1, 4, (64, 64, 3))
+
+
+def test_psnr_by_latent_finds_the_chunk_a_decoder_loses(heldout):
+    windows = AT.heldout_windows(heldout, window=9, windows=1, k=4)
+
+    def loses_chunk_two(obs_BTPHW3):  # frames 0 | 1-4 | 5-8: the second chunk comes out black
+        rec = obs_BTPHW3.copy()
+        rec[:, 5:9] = 0
+        return rec
+
+    psnr, by_latent, _ = AT.psnr_by_surface(loses_chunk_two, windows, k=4)
+    assert by_latent[0] > 100 and by_latent[1] > 100 and by_latent[2] < 15
+    assert all(v < 20 for v in psnr.values())
