@@ -36,6 +36,9 @@ CANDIDATES = {
     "s4_z16": {"dim_mult": (1, 2, 4), "temporal_downsample": (True, True), "decoder_head_upscale": 1},
     "s4_z32": {"z_dim": 32, "dim_mult": (1, 2, 4), "temporal_downsample": (True, True), "decoder_head_upscale": 1},
     "s4_z16_k2": {"dim_mult": (1, 2, 4), "temporal_downsample": (False, True), "decoder_head_upscale": 2},
+    # tiny16's layout with 4x the channels: encoder base 16 -> 32 (it runs once per env reset), decoder 8 -> 32
+    "s4_z16_w32": {"dim_mult": (1, 2, 4), "temporal_downsample": (True, True), "decoder_head_upscale": 1,
+                   "base_dim": 32, "decoder_base_dim": 32},
 }
 
 
