@@ -43,4 +43,11 @@ def test_tiny16_trains_like_tiny():
     sprint = SprintConfig.load("tiny16")
     assert (sprint.preset, sprint.stage_config) == ("tiny16", "tiny16")
     assert sprint.fractions["vae"] > SprintConfig.load("tiny").fractions["vae"]  # the 4x latent needs more updates
-    assert sprint.devices == SprintConfig.load("tiny").devices
+    tiny_devices = SprintConfig.load("tiny").devices
+    assert sprint.devices["cpu"] == tiny_devices["cpu"]
+    # on the GPU the VAE stages train on longer clips (the encoder sees 76 frames back, docs/training.md)
+    gpu, tiny_gpu = sprint.devices["gpu"], tiny_devices["gpu"]
+    assert gpu.stages["vae"] == {"batch_size": 16, "num_frames": 33}
+    assert gpu.stages["vae-decoder"] == {"batch_size": 4, "num_frames": 81}
+    assert {k: v for k, v in gpu.stages.items() if k not in ("vae", "vae-decoder")} == {
+        k: v for k, v in tiny_gpu.stages.items() if k not in ("vae", "vae-decoder")}
