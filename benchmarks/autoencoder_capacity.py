@@ -60,6 +60,18 @@ def surface_of(groundtruth: dict) -> str:
     return SURFACES[int(groundtruth["instance"]) % len(SURFACES)]
 
 
+def test_videos(data_dir: str | Path) -> list[tuple[str, list[Path]]]:
+    """(surface, [Alpha's video, Bravo's video]) of every ``duet/test`` episode, sorted by file name."""
+    test = Path(data_dir) / "duet" / "test"
+    out = []
+    for gt_path in sorted(test.glob("*_groundtruth.json")):
+        stem = gt_path.name.removesuffix("_groundtruth.json")  # batch_B_EEEEEE_instance_III
+        prefix, instance = stem.rsplit("_instance_", 1)
+        out.append((surface_of(json.loads(gt_path.read_text())),
+                    [test / f"{prefix}_{player}_instance_{instance}.mp4" for player in ("Alpha", "Bravo")]))
+    return out
+
+
 def held_out_clips(data_dir: Path, num_frames: int, per_episode: int, seed: int = 0) -> dict[str, np.ndarray]:
     """surface -> (N, num_frames, 64, 64, 3) uint8 clips from ``duet/test`` (both players, evenly spaced
     starts per video, the same every run)."""
@@ -67,12 +79,8 @@ def held_out_clips(data_dir: Path, num_frames: int, per_episode: int, seed: int 
 
     clips: dict[str, list] = {}
     test = data_dir / "duet" / "test"
-    for gt_path in sorted(test.glob("*_groundtruth.json")):
-        surface = surface_of(json.loads(gt_path.read_text()))
-        stem = gt_path.name.removesuffix("_groundtruth.json")  # batch_B_EEEEEE_instance_III
-        prefix, instance = stem.rsplit("_instance_", 1)
-        for player in ("Alpha", "Bravo"):
-            video = test / f"{prefix}_{player}_instance_{instance}.mp4"
+    for surface, videos in test_videos(data_dir):
+        for video in videos:
             n = probe_video(video)
             if n < num_frames:
                 continue

@@ -28,7 +28,6 @@ each model's reconstruction.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import time
@@ -46,13 +45,6 @@ TARGET_JUDGE_POINTS = 3.0
 Reconstruct = Callable[[np.ndarray], np.ndarray]
 
 
-def model_reconstruct(model) -> Reconstruct:
-    """The reconstruction of ``model``'s VAE (encode to the posterior mean, decode), jitted once."""
-    from training.samples import vae_reconstructor
-
-    return vae_reconstructor(model)
-
-
 # ---------------------------------------------------------------------------------------------
 # 1. PSNR per surface on held-out videos
 # ---------------------------------------------------------------------------------------------
@@ -61,24 +53,21 @@ def model_reconstruct(model) -> Reconstruct:
 def heldout_windows(data_dir: str | Path, window: int, windows: int, k: int) -> dict[str, np.ndarray]:
     """surface -> uint8 (N, window, 2, H, W, 3): both players' frames of up to ``windows`` consecutive,
     non-overlapping windows of every ``duet/test`` episode (the same every run)."""
-    from benchmarks.autoencoder_capacity import surface_of
+    from benchmarks.autoencoder_capacity import test_videos
     from training.video_io import probe_video, read_frames
 
     if window < 1 or (window - 1) % k:
         raise ValueError(f"window must be 1 + {k} * n frames (a first frame, then whole latent chunks), got {window}")
     test = Path(data_dir) / "duet" / "test"
     out: dict[str, list[np.ndarray]] = defaultdict(list)
-    for gt_path in sorted(test.glob("*_groundtruth.json")):
-        gt = json.loads(gt_path.read_text())
-        prefix, instance = gt_path.name.removesuffix("_groundtruth.json").rsplit("_instance_", 1)
-        videos = [test / f"{prefix}_{player}_instance_{instance}.mp4" for player in ("Alpha", "Bravo")]
+    for surface, videos in test_videos(data_dir):
         length = min(min(probe_video(v) for v in videos), window * windows)
         n = length // window
         if n == 0:
             continue
         frames = [read_frames(v, 0, n * window) for v in videos]
         for i in range(n):
-            out[surface_of(gt)].append(np.stack([f[i * window:(i + 1) * window] for f in frames], axis=1))
+            out[surface].append(np.stack([f[i * window:(i + 1) * window] for f in frames], axis=1))
     if not out:
         raise ValueError(f"{test}: no held-out episode with >= {window} frames "
                          "(collect with --test-fraction 1 into this folder)")
@@ -122,17 +111,11 @@ def psnr_by_surface(reconstruct: Reconstruct, windows: dict[str, np.ndarray], k:
 
 def reconstructed_query_frames(reconstruct: Reconstruct, segments) -> dict[tuple[str, str, int], np.ndarray]:
     """(episode key, bot, window index) -> the reconstructed frame of every judge query's view."""
-    from solaris_env.judges.scoring import query_views
+    from benchmarks.eval_tasks import query_frames
 
     kept = {}
     for seg in segments:
-        rec_TPHW3 = reconstruct(seg.ground_truth()[None])[0]
-        for p, bot in enumerate(seg.players):
-            for q in seg.episode.queries():
-                for qbot, g in query_views(q):
-                    if qbot == bot:
-                        j = seg.generated_index(g)
-                        kept[(seg.episode.key, bot, j)] = rec_TPHW3[j, p].copy()
+        kept.update(query_frames(seg, reconstruct(seg.ground_truth()[None])[0]))
     return kept
 
 
@@ -279,7 +262,7 @@ def main(argv: list[str] | None = None) -> dict:
     from benchmarks.dream_fidelity import load_model, model_label
     from benchmarks.machine import machine_info, write_result
     from solaris_env.paths import portable_path
-    from training.samples import write_png
+    from training.samples import vae_reconstructor, write_png
 
     load = os.getloadavg()
     specs = args.model or ["default"]
@@ -290,7 +273,7 @@ def main(argv: list[str] | None = None) -> dict:
         raise SystemExit(f"--model: every model must share frames per step and frame size to be compared on the "
                          f"same windows, got k {sorted(ks)} and frames {sorted(shapes)}")
     t0 = time.perf_counter()
-    result, sheet = run({name: model_reconstruct(m) for name, m in loaded.items()}, args.heldout, args.eval_data,
+    result, sheet = run({name: vae_reconstructor(m) for name, m in loaded.items()}, args.heldout, args.eval_data,
                         args.window, args.windows, ks.pop(), shapes.pop())
     result = {"benchmark": "autoencoder_target", "heldout": portable_path(args.heldout),
               "eval_data": portable_path(args.eval_data), **result, "table": None,

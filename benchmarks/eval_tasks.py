@@ -183,6 +183,19 @@ class GeneratedVideos:
         return frames
 
 
+def query_frames(seg: Segment, video_TPHW3: np.ndarray) -> dict[tuple[str, str, int], np.ndarray]:
+    """(episode key, bot, window index) -> the frame of ``video_TPHW3`` (the segment's window, generated or
+    reconstructed) that each of the episode's judge queries looks at."""
+    kept = {}
+    for p, bot in enumerate(seg.players):
+        for q in seg.episode.queries():
+            for qbot, g in query_views(q):
+                if qbot == bot:
+                    j = seg.generated_index(g)
+                    kept[(seg.episode.key, bot, j)] = video_TPHW3[j, p].copy()
+    return kept
+
+
 def _batches(segments: Sequence[Segment], worlds: int) -> list[list[Segment]]:
     return [list(segments[i:i + worlds]) for i in range(0, len(segments), worlds)]
 
@@ -211,12 +224,7 @@ def generate(model, segments: Sequence[Segment], seed: int, worlds: int,
         act_BTP25 = np.stack([seg.actions() for seg in padded])
         gen_BTPHW3 = rollout(model, obs_BTPHW3, act_BTP25, seed * 1_000_003 + i)
         for b, seg in enumerate(batch):
-            for p, bot in enumerate(seg.players):
-                for q in seg.episode.queries():
-                    for qbot, g in query_views(q):
-                        if qbot == bot:
-                            j = seg.generated_index(g)
-                            kept[(seg.episode.key, bot, j)] = gen_BTPHW3[b, j, p].copy()
+            kept.update(query_frames(seg, gen_BTPHW3[b]))
             gen_NHW3 = gen_BTPHW3[b].reshape(-1, *gen_BTPHW3.shape[-3:])  # all T frames of both players
             if features is not None:
                 feats[seg.episode.episode_type].append(features(gen_NHW3))

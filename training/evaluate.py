@@ -34,7 +34,7 @@ from training.samples import (
     psnr_per_frame,
     rollout,
     side_by_side,
-    vae_reconstruction,
+    vae_reconstructor,
     write_json,
     write_mp4,
     write_png,
@@ -76,7 +76,7 @@ def evaluate(model_dir: str | Path, data_dir: str | Path, out_dir: str | Path, n
     gen_zero = rollout(model, obs, np.zeros_like(act), seed)
     gen_teacher = rollout(model, obs, act, seed, teacher_forced=True)
     copy = np.repeat(obs[:, :1], obs.shape[1], axis=1)
-    ceiling = vae_reconstruction(model, obs)
+    ceiling = vae_reconstructor(model)(obs)
     score = lambda x: psnr_per_frame(x, obs)[:, 1:]  # (B, T-1, P): frames after the given one
     mse_db = lambda x: float(10.0 * np.log10(255.0 ** 2 / np.mean((x[:, 1:].astype(np.float64) - obs[:, 1:]) ** 2)))
     per_player = lambda x: [float(v) for v in score(x).mean(axis=(0, 1))]

@@ -89,11 +89,6 @@ def vae_reconstructor(model: WorldModel, batch: int = 8):
     return reconstruct
 
 
-def vae_reconstruction(model: WorldModel, obs_BTPHW3: np.ndarray, batch: int = 8) -> np.ndarray:
-    """``vae_reconstructor(model, batch)(obs_BTPHW3)``, for one call."""
-    return vae_reconstructor(model, batch)(obs_BTPHW3)
-
-
 def psnr_per_frame(a_BTPHW3: np.ndarray, b_BTPHW3: np.ndarray) -> np.ndarray:
     """PSNR (dB, peak 255) per (B, T, P) frame."""
     mse = np.mean((a_BTPHW3.astype(np.float64) - b_BTPHW3.astype(np.float64)) ** 2, axis=(-3, -2, -1))
