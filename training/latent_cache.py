@@ -21,26 +21,28 @@ logger = logging.getLogger(__name__)
 
 
 class LatentCache:
-    """Per-video latents on disk, computed once by a frozen encoder.
+    """Per-video tensors on disk (the latents, and what else the clips need), computed once by a frozen encoder.
 
     One safetensors file per video and encoder, ``{stem}.{sha1(fingerprint)[:12]}.safetensors``, whose
-    metadata records the source's size and mtime (ns), the fingerprint and the frame size. A lookup is
-    a hit only if all of them match; otherwise the video is decoded, ``encode_fn(frames_THW3 uint8)``
-    is called and the result replaces the file (written to a temporary name, then ``os.replace``d, so
-    readers never see a partial file).
+    metadata records the source's size and mtime (ns), the fingerprint, the frame size and the names of the
+    tensors. A lookup is a hit only if all of them match; otherwise the video is decoded,
+    ``encode_fn(frames_THW3 uint8)`` is called (it returns a dict with exactly those names) and the result
+    replaces the file (written to a temporary name, then ``os.replace``d, so readers never see a partial file).
 
     Args:
         cache_dir: directory for the cache files (created).
         fingerprint: identifies the encoder (e.g. preset name + a hash of its weights); a new
             fingerprint never reuses another's latents.
+        tensors: the names ``encode_fn`` returns; a file holding others (an older layout) is stale.
 
     Attributes:
         stats: counts of "hits", "misses" (no file) and "stale" (file for another source version).
     """
 
-    def __init__(self, cache_dir: str | Path, fingerprint: str) -> None:
+    def __init__(self, cache_dir: str | Path, fingerprint: str, tensors: tuple[str, ...] = ("latents",)) -> None:
         self.dir = Path(cache_dir)
         self.dir.mkdir(parents=True, exist_ok=True)
+        self.tensors = tuple(tensors)
         self.fingerprint = str(fingerprint)
         self._tag = hashlib.sha1(self.fingerprint.encode()).hexdigest()[:12]
         self.stats: Counter[str] = Counter()
@@ -57,10 +59,11 @@ class LatentCache:
     def _key(self, video: Path, size: tuple[int, int] | None) -> dict[str, str]:
         st = video.stat()
         return {"source": video.name, "source_size": str(st.st_size), "source_mtime_ns": str(st.st_mtime_ns),
-                "fingerprint": self.fingerprint, "frame_size": "native" if size is None else f"{size[0]}x{size[1]}"}
+                "fingerprint": self.fingerprint, "frame_size": "native" if size is None else f"{size[0]}x{size[1]}",
+                "tensors": ",".join(self.tensors)}
 
-    def get(self, video: str | Path, obs_size: tuple[int, int] | None = None) -> np.ndarray | None:
-        """Cached latents of ``video`` at ``obs_size``, or None (miss or stale)."""
+    def get(self, video: str | Path, obs_size: tuple[int, int] | None = None) -> dict[str, np.ndarray] | None:
+        """The cached tensors of ``video`` at ``obs_size`` by name, or None (miss or stale)."""
         from safetensors import safe_open
 
         video, path = Path(video), self.path_for(video)
@@ -72,32 +75,35 @@ class LatentCache:
                 if f.metadata() != self._key(video, obs_size):
                     self._count("stale")
                     return None
-                latents = f.get_tensor("latents")
+                tensors = {name: f.get_tensor(name) for name in self.tensors}
         except Exception as err:  # noqa: BLE001 - an unreadable cache file is a miss, never a crash
             logger.warning("latent cache: unreadable %s (%s); re-encoding", path.name, err)
             self._count("stale")
             return None
         self._count("hits")
-        return latents
+        return tensors
 
-    def get_or_encode(self, video: str | Path, encode_fn: Callable[[np.ndarray], Any],
-                      obs_size: tuple[int, int] | None = None) -> np.ndarray:
-        """Cached latents, or decode every frame (resized to obs_size), encode, store and return them."""
-        latents = self.get(video, obs_size)
-        if latents is not None:
-            return latents
+    def get_or_encode(self, video: str | Path, encode_fn: Callable[[np.ndarray], dict[str, Any]],
+                      obs_size: tuple[int, int] | None = None) -> dict[str, np.ndarray]:
+        """The cached tensors, or decode every frame (resized to obs_size), encode, store and return them."""
+        tensors = self.get(video, obs_size)
+        if tensors is not None:
+            return tensors
         video = Path(video)
         key = self._key(video, obs_size)  # before decoding: a file changed meanwhile reads as stale next time
-        latents = np.ascontiguousarray(np.asarray(encode_fn(read_frames(video, 0, None, obs_size))))
-        self._write(self.path_for(video), latents, key)
-        return latents
+        encoded = encode_fn(read_frames(video, 0, None, obs_size))
+        if sorted(encoded) != sorted(self.tensors):
+            raise ValueError(f"latent cache: encode_fn returned tensors {sorted(encoded)}, expected {sorted(self.tensors)}")
+        tensors = {name: np.ascontiguousarray(np.asarray(encoded[name])) for name in self.tensors}
+        self._write(self.path_for(video), tensors, key)
+        return tensors
 
-    def _write(self, path: Path, latents: np.ndarray, key: dict[str, str]) -> None:
+    def _write(self, path: Path, tensors: dict[str, np.ndarray], key: dict[str, str]) -> None:
         from safetensors.numpy import save
 
         tmp = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp")
         try:
-            tmp.write_bytes(save({"latents": latents}, metadata=key))
+            tmp.write_bytes(save(tensors, metadata=key))
             os.replace(tmp, path)
         finally:
             tmp.unlink(missing_ok=True)

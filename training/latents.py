@@ -11,6 +11,10 @@ runs at full resolution), so stages 1-4 read latents from a cache made once per 
   ``x0 = [image[a], stream[a+1], ..., stream[a+F-1]]``: latent 0 exactly as the world model encodes
   a start frame, later latents as the streaming encoder sees them (with the video's causal history
   instead of the clip's, a negligible difference beyond the encoder's receptive field).
+* the anchor frames themselves (``anchor_frames[a]`` = frame ``k*a``, uint8): a clip's first frame, which the
+  image encoder reads. Kept with the latents, a batch needs no video decoded: reading them from the videos
+  (a whole video decoded per cache miss, ~60 ms) took ~5 s per batch of 64 clips on this CPU, far longer than
+  a GPU's step.
 
 Segments come from the usual resumable samplers (``training.samplers``); their starts are snapped down
 to the anchor grid: record start ``s`` becomes ``s' = k * floor((s + 1) / k) - 1`` so that the first
@@ -89,8 +93,11 @@ class VideoEncoder:
 
         self._first, self._next, self._image = jax.jit(first), jax.jit(nxt), jax.jit(image)
 
-    def __call__(self, frames_THW3: np.ndarray) -> np.ndarray:
-        """(N, H, W, 3) uint8 -> (Ns, 2, h, w, C) f16: [:, 0] stream latents, [:, 1] anchor images."""
+    tensors = ("latents", "anchor_frames")  # what ``__call__`` returns, by name (the cache files' tensors)
+
+    def __call__(self, frames_THW3: np.ndarray) -> dict[str, np.ndarray]:
+        """(N, H, W, 3) uint8 -> {"latents": (Ns, 2, h, w, C) f16 ([:, 0] stream latents, [:, 1] anchor
+        images), "anchor_frames": (Ns, H, W, 3) uint8 (frames 0, k, 2k, ...)}."""
         k, c = self.k, STREAM_CHUNK_LATENTS
         n = len(frames_THW3)
         ns = 1 + (n - 1) // k
@@ -111,7 +118,7 @@ class VideoEncoder:
             batch = pad(anchors[start:start + IMAGE_BATCH], IMAGE_BATCH)
             images.append(np.asarray(self._image(self._state, jnp.asarray(batch))))
         images = np.concatenate(images)[:ns]
-        return np.stack([stream, images], axis=1).astype(np.float16)
+        return {"latents": np.stack([stream, images], axis=1).astype(np.float16), "anchor_frames": anchors[:ns]}
 
 
 def snap_start(start: int, k: int) -> int:
@@ -131,7 +138,7 @@ class LatentClips:
     def __init__(self, dataset, cache: LatentCache, encoder: VideoEncoder, canonical_dir: Path | None = None) -> None:
         self.dataset, self.cache, self.encoder = dataset, cache, encoder
         self.k = encoder.k
-        self._latents: dict[Path, np.ndarray] = {}
+        self._latents: dict[Path, dict[str, np.ndarray]] = {}  # video -> its cache tensors
         # the VPT export hard-links the Duet videos: latents are shared through the inode
         self._canonical = {}
         if canonical_dir is not None and Path(canonical_dir).is_dir():
@@ -151,9 +158,10 @@ class LatentClips:
         episode = self.dataset.episode(segment.episode_id)
         return [(episode.video, episode.act_T25, segment.start)]
 
-    def latents(self, video: Path) -> np.ndarray:
-        """The video's latents; encoded now if they are not ready, unless the background encoder runs: then
-        EpisodeError(NOT_READY) (the draw is repeated), or DECODE_ERROR for a video it could not encode."""
+    def latents(self, video: Path) -> dict[str, np.ndarray]:
+        """The video's cache tensors (``VideoEncoder.tensors``); encoded now if they are not ready, unless the
+        background encoder runs: then EpisodeError(NOT_READY) (the draw is repeated), or DECODE_ERROR for a
+        video it could not encode."""
         lat = self._latents.get(video)
         if lat is None:
             if self._background_error is not None:
@@ -182,7 +190,7 @@ class LatentClips:
                        if video not in self._latents and video not in self._failed]
         return videos
 
-    def _cached_or_encoded(self, video: Path) -> np.ndarray:
+    def _cached_or_encoded(self, video: Path) -> dict[str, np.ndarray]:
         st = video.stat()
         source = self._canonical.get((st.st_dev, st.st_ino), video)
         return self.cache.get_or_encode(source, self.encoder, self.dataset.frames.size)
@@ -221,7 +229,7 @@ class LatentClips:
                         logger.info("latent cache: %d/%d videos (%s)", done, len(videos), dict(self.cache.stats))
         return self.num_ready
 
-    def _encode_or_fail(self, video: Path) -> np.ndarray | None:
+    def _encode_or_fail(self, video: Path) -> dict[str, np.ndarray] | None:
         """The video's latents, or None after recording why it could not be encoded (``latents`` then
         raises DECODE_ERROR for it, so a bad video is tried once, not at every draw)."""
         try:
@@ -285,11 +293,12 @@ class LatentClips:
         for video, act_T25, start in self._player_recordings(segment):
             s = snap_start(start, k)
             a = (s + 1) // k
-            lat = self.latents(video)
+            cached = self.latents(video)
+            lat = cached["latents"]
             if a + num_latent > len(lat):
                 raise EpisodeError(DECODE_ERROR, f"{video.name}: {len(lat)} latents, clip needs {a + num_latent}")
             x0s.append(np.concatenate([lat[a:a + 1, 1], lat[a + 1:a + num_latent, 0]]).astype(np.float32))
-            firsts.append(self.dataset.frames.read(video, s + 1, s + 2)[0])
+            firsts.append(cached["anchor_frames"][a])  # frame s + 1 = k * a
             act = act_T25[max(s, 0): s + num_frames]
             if s < 0:
                 act = np.concatenate([np.zeros((1, act_T25.shape[1]), np.float32), act])
@@ -337,7 +346,7 @@ def latent_clips(dataset, cfg: WorldModelConfig, vae, cache_root: Path, canonica
     """LatentClips with its cache under ``cache_root/<VAE fingerprint>``; ``canonical_dir`` (e.g.
     ``data/duet``) names the videos that hard-linked copies (the VPT export) share latents with."""
     encoder = VideoEncoder(cfg, vae)
-    cache = LatentCache(Path(cache_root) / encoder.fingerprint, encoder.fingerprint)
+    cache = LatentCache(Path(cache_root) / encoder.fingerprint, encoder.fingerprint, VideoEncoder.tensors)
     return LatentClips(dataset, cache, encoder, canonical_dir)
 
 

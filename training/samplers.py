@@ -15,8 +15,10 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 from collections import Counter
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -28,6 +30,11 @@ from training.episodes import TOO_SHORT, EpisodeError, SegmentMP, SegmentSP
 from training.vpt import VPTDataset
 
 logger = logging.getLogger(__name__)
+
+# Segments of a batch load on this many threads (``next_batch``): decoding and resizing release the GIL, and a
+# GPU step is faster than one thread decodes its batch (docs/training.md, "The data loader").
+LOAD_THREADS = max(1, min(8, os.cpu_count() or 1))
+_load_pool: ThreadPoolExecutor | None = None
 
 
 class _ResumableSampler:
@@ -248,18 +255,32 @@ def next_batch(dataset, sampler: _ResumableSampler, batch_size: int, num_frames:
     """Draw and load ``batch_size`` segments; a segment whose episode fails to decode is replaced by the
     next draw (the failure is logged and counted in ``dataset.skipped``). Deterministic given the
     sampler state, so it resumes exactly with the sampler."""
+    global _load_pool
     num_frames = num_frames or sampler.num_frames
-    return make_batch(draw_loaded(sampler, lambda seg: dataset.load(seg, num_frames), batch_size), num_frames)
+    if _load_pool is None and LOAD_THREADS > 1:
+        _load_pool = ThreadPoolExecutor(LOAD_THREADS, thread_name_prefix="segment-loader")
+    return make_batch(draw_loaded(sampler, lambda seg: dataset.load(seg, num_frames), batch_size, _load_pool),
+                      num_frames)
 
 
-def draw_loaded(sampler, load, batch_size: int) -> list:
-    """``batch_size`` results of ``load(sampler.next())``, drawing again when an episode fails (EpisodeError)."""
+def draw_loaded(sampler, load, batch_size: int, pool: ThreadPoolExecutor | None = None) -> list:
+    """``batch_size`` results of ``load(sampler.next())``, drawing again when an episode fails (EpisodeError).
+
+    With ``pool``, the loads of a batch run on its threads; the segments are still drawn one after another
+    and kept in draw order. The result is deterministic given the sampler's state either way, and while no
+    episode fails it is the one-thread loop's (after a failure, draws already made may still pick the episode
+    that failed: they are replaced in turn)."""
+
+    def attempt(segment):
+        try:
+            return True, load(segment)
+        except EpisodeError:
+            return False, None
+
     out = []
     while len(out) < batch_size:
-        segment = sampler.next()
-        try:
-            out.append(load(segment))
-        except EpisodeError:
-            continue
+        segments = [sampler.next() for _ in range(batch_size - len(out))]
+        results = pool.map(attempt, segments) if pool is not None else map(attempt, segments)
+        out += [result for ok, result in results if ok]
     return out
 

@@ -619,16 +619,19 @@ class Sprint:
             latest, trained = stage, True
             if record["first_step_s"] is not None and self.device.overhead_s[stage] > 0:
                 ratios.append(record["first_step_s"] / self.device.overhead_s[stage])
+            held_out = record.get("held_out", {})
+            psnr = f"; held-out {held_out['test_psnr_db']:.2f} dB" if "test_psnr_db" in held_out else ""
             print(f"sprint: {stage}: {record['steps']} steps in {record['wall_s']:.1f} s (share "
-                  f"{shares[stage]:.1f} s); data {record['data']}", flush=True)
+                  f"{shares[stage]:.1f} s, first step after {record['first_step_s']} s, last {record['steps_per_s']} "
+                  f"steps/s{psnr}); data {record['data']}", flush=True)
         if not trained:
             raise ValueError(f"sprint: no stage ran within {self.args.budget_min:g} min (see the skip reasons above)")
         return latest
 
     def train_stage(self, stage: str, deadline: float) -> dict:
         """Train ``stage`` until ``deadline``; returns its lineage record: wall time, steps, when its first step
-        ended (setup and JIT compile: seconds after the stage's start; the DiT stages report every step, the VAE
-        stages' step 1 is read from their metrics when it was logged), its last losses and the data it saw."""
+        ended (setup and JIT compile: seconds after the stage's start), the steps per second of its last logged
+        stretch, its last losses, the VAE stages' held-out PSNR (overall and per latent) and the data it saw."""
         from training.metrics import read_metrics
         from training.train import call_stage, stage_dir
 
@@ -638,28 +641,37 @@ class Sprint:
         beat, first_step_at = [t_start], []
 
         def on_model(step: int, make_model) -> None:
-            if not first_step_at:
-                first_step_at.append(time.time())
             if exportable and self.exporter.due():
                 self.exporter.export(make_model(), stage, step)
+            progress(step)
+
+        def progress(step: int) -> None:
+            if not first_step_at:
+                first_step_at.append(time.time())
             if time.time() - beat[0] >= HEARTBEAT_S:
                 beat[0] = time.time()
                 print(f"sprint: {stage}: step {step}, {beat[0] - t_start:.0f} s in, {deadline - beat[0]:.0f} s to "
                       f"its deadline", flush=True)
 
         kw = {"seed": self.cfg.seed, "steps": OPEN_ENDED_STEPS, "resume": False, "deadline": deadline}
-        if stage not in VAE_STAGES:
+        if stage in VAE_STAGES:
+            kw["on_step"] = lambda state, step: progress(step)
+        else:
             kw["on_model"] = on_model
         call_stage(stage, self.run_dir, self.data, stage_blocks(self.cfg, self.device), **kw)
         metrics = read_metrics(stage_dir(self.run_dir, stage) / "metrics.jsonl")
+        summary = stage_dir(self.run_dir, stage) / "summary.json"  # the VAE stages' held-out PSNR
+        summary = json.loads(summary.read_text()) if summary.is_file() else {}
         seen = data_record(STREAMS[n_streams:])
         del STREAMS[n_streams:]  # their datasets (and frame caches) go with the stage
-        first, last = (metrics[0], metrics[-1]) if metrics else ({}, {})
-        if not first_step_at and first.get("step") == 1:
-            first_step_at.append(first["time"])
+        last = metrics[-1] if metrics else {}
+        held_out = {k: summary[k] for k in ("num_frames", "test_psnr_db", "test_psnr_by_latent_db") if k in summary}
+        if "after" in summary:  # vae-decoder
+            held_out.update(num_frames=summary["num_frames"], **summary["after"])
         return {"status": "ran", "wall_s": round(time.time() - t_start, 1), "steps": last.get("step", 0),
                 "first_step_s": round(first_step_at[0] - t_start, 1) if first_step_at else None,
-                "losses": {k: v for k, v in last.items() if k.endswith("loss")}, "data": seen}
+                "steps_per_s": last.get("steps_per_s"), "losses": {k: v for k, v in last.items() if k.endswith("loss")},
+                **({"held_out": held_out} if held_out else {}), "data": seen}
 
     def print_timing(self) -> None:
         print("sprint: stage              status   share_s   wall_s    steps  train episodes (start -> end)")

@@ -94,10 +94,14 @@ class TrainState:
         it to the train step never invalidates ``model``'s own arrays. ``ema``: keep a moving average of the
         parameters, starting from them."""
         graphdef, params, rest = nnx.split(model, nnx.Param, ...)
-        params, rest = jax.tree.map(jnp.copy, (params, rest))
         key = jax.random.PRNGKey(rng) if isinstance(rng, (int, np.integer)) else jnp.asarray(rng, jnp.uint32)
-        return graphdef, cls(params=params, rest=rest, opt_state=tx.init(params), step=jnp.zeros((), jnp.int32),
-                             rng=key, ema=jax.tree.map(jnp.copy, params) if ema else None)
+
+        def build(params, rest, key):  # one program: eager, each leaf's copy and optimiser slots compile alone
+            copy = lambda tree: jax.tree.map(jnp.copy, tree)
+            return cls(params=copy(params), rest=copy(rest), opt_state=tx.init(params),
+                       step=jnp.zeros((), jnp.int32), rng=key, ema=copy(params) if ema else None)
+
+        return graphdef, jax.jit(build)(params, rest, key)
 
     @property
     def final_params(self) -> Any:

@@ -221,9 +221,9 @@ def vpt_stream(data_dir: Path, cfg: WorldModelConfig, num_frames: int, seed: int
 
 def train_vae(out: str | Path, data_dir: str | Path, preset_name: str, sc: VAEStageConfig, seed: int = 0,
               steps: int | None = None, resume: bool = True, fsdp: bool = False,
-              deadline: float | None = None) -> Path:
+              deadline: float | None = None, on_step: Callable | None = None) -> Path:
     """Train the preset's VAE on single-player clips of the Duet data; write ``out/vae/model``. ``deadline``
-    as ``train_flow``'s."""
+    as ``train_flow``'s; ``on_step`` as ``run_loop``'s."""
     from training import vae as V
     from training.samples import write_json, write_png
 
@@ -251,24 +251,31 @@ def train_vae(out: str | Path, data_dir: str | Path, preset_name: str, sc: VAESt
     spec = LoopSpec("vae", steps, sc.log_every, sc.ckpt_every, sc.sample_every,
                     tokens_per_step=batch_size * cfg.num_players * sc.num_frames * cfg.frame_height
                     * cfg.frame_width, lr=sc.lr, fsdp=fsdp, deadline=deadline)
-    state = run_loop(spec, out, state, step_fn, draw, sampler, resume, on_sample)
+    state = run_loop(spec, out, state, step_fn, draw, sampler, resume, on_sample, on_step)
 
-    stats_clips = [draw() for _ in range(max(1, sc.stats_clips // (batch_size * cfg.num_players)))]
-    mean, std = V.latent_statistics(graphdef, state.params, state.rest, stats_clips)
-    test_psnr = float(np.mean([V.psnr_uint8(np.asarray(reconstruct(state.params, state.rest, c)), c)
-                               for c in test_clips]))
+    # the held-out PSNR and the latent statistics through one program, on chunks of the held-out clips' shape
+    encode_reconstruct = V.make_encode_reconstruct(graphdef)
+    chunk = len(test_clips[0])
+    draws = max(1, sc.stats_clips // (batch_size * cfg.num_players))
+    stats = np.concatenate([np.asarray(draw()) for _ in range(draws)])
+    stats_chunks = [stats[i:i + chunk] for i in range(0, len(stats), chunk)]
+    mean, std = V.latent_statistics([encode_reconstruct(state.params, state.rest, c)[1] for c in stats_chunks])
+    recs = [np.asarray(encode_reconstruct(state.params, state.rest, c)[0]) for c in test_clips]
+    test_psnr = float(np.mean([V.psnr_uint8(rec, c) for rec, c in zip(recs, test_clips)]))
+    by_latent = V.psnr_per_latent_step(np.concatenate(recs), np.concatenate(test_clips), cfg.frames_per_step)
     final_cfg = cfg.replace(vae=dataclasses.replace(cfg.vae, latent_mean=mean, latent_std=std))
     trained_vae = nnx.merge(graphdef, state.params, state.rest)
     dit, _, encoder = model.modules()
     WorldModel(final_cfg, dit, trained_vae, encoder).save(model_dir(out, "vae"))
     write_json(stage_dir(out, "vae") / "summary.json",
-                {"steps": steps, "test_psnr_db": test_psnr, "latent_mean": mean, "latent_std": std})
+                {"steps": int(state.step), "num_frames": sc.num_frames, "test_psnr_db": test_psnr,
+                 "test_psnr_by_latent_db": by_latent, "latent_mean": mean, "latent_std": std})
     return model_dir(out, "vae")
 
 
 def train_vae_decoder(out: str | Path, data_dir: str | Path, preset_name: str, sc: VAEDecoderStageConfig,
                       seed: int = 0, steps: int | None = None, resume: bool = True, fsdp: bool = False,
-                      deadline: float | None = None) -> Path:
+                      deadline: float | None = None, on_step: Callable | None = None) -> Path:
     """Fine-tune the decoder side of ``out/vae/model`` on long clips (``training.vae``: the encoder, the
     latent statistics and so every latent stay fixed); write ``out/vae-decoder/model``.
 
@@ -310,11 +317,11 @@ def train_vae_decoder(out: str | Path, data_dir: str | Path, preset_name: str, s
     spec = LoopSpec("vae-decoder", steps, sc.log_every, sc.ckpt_every, sc.sample_every,
                     tokens_per_step=batch_size * cfg.num_players * sc.num_frames * cfg.frame_height
                     * cfg.frame_width, lr=sc.lr, fsdp=fsdp, deadline=deadline)
-    state = run_loop(spec, out, state, step_fn, draw, sampler, resume, on_sample)
+    state = run_loop(spec, out, state, step_fn, draw, sampler, resume, on_sample, on_step)
     after = test_psnr(state)
     WorldModel(cfg, dit, nnx.merge(graphdef, state.params, state.rest), encoder).save(model_dir(out, "vae-decoder"))
     write_json(stage_dir(out, "vae-decoder") / "summary.json",
-               {"steps": steps, "num_frames": sc.num_frames, "before": before, "after": after})
+               {"steps": int(state.step), "num_frames": sc.num_frames, "before": before, "after": after})
     return model_dir(out, "vae-decoder")
 
 

@@ -130,14 +130,21 @@ def psnr_from_mse(mse_pm1: jax.Array) -> jax.Array:
 def make_reconstruct(graphdef: nnx.GraphDef):
     """-> jitted ``reconstruct(params, rest, video uint8 (B, T, H, W, 3)) -> uint8`` through the posterior
     mean (what the world model uses), clipped and quantised like generated frames."""
+    encode_decode = make_encode_reconstruct(graphdef)
+    return jax.jit(lambda params, rest, video_uint8: encode_decode(params, rest, video_uint8)[0])
 
-    def reconstruct(params, rest, video_uint8):
+
+def make_encode_reconstruct(graphdef: nnx.GraphDef):
+    """-> jitted ``(params, rest, video uint8 (B, T, H, W, 3)) -> (reconstruction uint8, raw posterior mean
+    (B, F, h, w, z_dim) float32)``: one program for a VAE stage's held-out PSNR and its latent statistics."""
+
+    def encode_reconstruct(params, rest, video_uint8):
         vae = nnx.merge(graphdef, params, rest)
         mu, _ = vae.encode_moments(frames_to_model(video_uint8))
         recon = jnp.clip(vae.decode_raw(mu), -1.0, 1.0)
-        return jnp.clip((recon + 1.0) * 127.5, 0.0, 255.0).astype(jnp.uint8)
+        return jnp.clip((recon + 1.0) * 127.5, 0.0, 255.0).astype(jnp.uint8), mu.astype(jnp.float32)
 
-    return jax.jit(reconstruct)
+    return jax.jit(encode_reconstruct)
 
 
 def psnr_per_latent_step(rec_BTHW3: np.ndarray, gt_BTHW3: np.ndarray, k: int) -> list[float]:
@@ -152,20 +159,12 @@ def psnr_uint8(a: np.ndarray, b: np.ndarray) -> float:
     return float(10.0 * np.log10(255.0 ** 2 / max(mse, 1e-12)))
 
 
-def latent_statistics(graphdef: nnx.GraphDef, params, rest, clips_uint8: list[np.ndarray]
-                      ) -> tuple[tuple[float, ...], tuple[float, ...]]:
-    """Per-channel mean and std of the posterior means over ``clips_uint8`` (each (B, T, H, W, 3))."""
-
-    @jax.jit
-    def moments(video_uint8):
-        mu, _ = nnx.merge(graphdef, params, rest).encode_moments(frames_to_model(video_uint8))
-        flat = mu.reshape(-1, mu.shape[-1]).astype(jnp.float32)
-        return flat.sum(0), jnp.square(flat).sum(0), flat.shape[0]
-
+def latent_statistics(mu_chunks: list) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """Per-channel mean and std of posterior means (each chunk (..., z_dim), e.g. ``make_reconstruct``'s)."""
     total, total_sq, count = 0.0, 0.0, 0
-    for clip in clips_uint8:
-        s, sq, n = moments(jnp.asarray(clip))
-        total, total_sq, count = total + np.asarray(s, np.float64), total_sq + np.asarray(sq, np.float64), count + int(n)
+    for mu in mu_chunks:
+        flat = np.asarray(mu, np.float64).reshape(-1, np.shape(mu)[-1])
+        total, total_sq, count = total + flat.sum(0), total_sq + np.square(flat).sum(0), count + len(flat)
     if count == 0:
         raise ValueError("latent_statistics: no clips given")
     mean = total / count

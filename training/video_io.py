@@ -4,6 +4,7 @@ Failures raise ``training.episodes.EpisodeError`` (``unreadable_video``, ``decod
 
 from __future__ import annotations
 
+import threading
 from collections import OrderedDict
 from pathlib import Path
 
@@ -80,7 +81,8 @@ def read_frames(path: str | Path, start: int, stop: int | None, size: tuple[int,
 
 
 class FrameReader:
-    """Reads frame ranges of videos at one output size, with an LRU of fully decoded videos.
+    """Reads frame ranges of videos at one output size, with an LRU of fully decoded videos. Thread-safe: the
+    loaders of ``training.samplers.next_batch`` read from several threads (decoding runs outside the lock).
 
     Args:
         size: (H, W) to resize to with INTER_AREA, or None to keep the recorded size.
@@ -95,22 +97,27 @@ class FrameReader:
         self._cache: OrderedDict[Path, np.ndarray] = OrderedDict()
         self._bytes = 0
         self._too_big: set[Path] = set()
+        self._lock = threading.Lock()
 
     def read(self, path: Path, start: int, stop: int) -> np.ndarray:
         """Frames ``[start, stop)`` as (stop - start, H, W, 3) uint8 RGB (read-only when cached)."""
         if self.max_bytes <= 0 or path in self._too_big:
             return read_frames(path, start, stop, self.size)
-        frames_THW3 = self._cache.get(path)
+        with self._lock:
+            frames_THW3 = self._cache.get(path)
+            if frames_THW3 is not None:
+                self._cache.move_to_end(path)
         if frames_THW3 is None:
             frames_THW3 = read_frames(path, 0, None, self.size)
-            self._put(path, frames_THW3)
-        else:
-            self._cache.move_to_end(path)
+            with self._lock:
+                self._put(path, frames_THW3)
         if stop > len(frames_THW3):
             raise EpisodeError(DECODE_ERROR, f"{path.name}: only {len(frames_THW3)} frames decode, need {stop}")
         return frames_THW3[start:stop]
 
-    def _put(self, path: Path, frames_THW3: np.ndarray) -> None:
+    def _put(self, path: Path, frames_THW3: np.ndarray) -> None:  # under the lock
+        if path in self._cache:  # another thread decoded it meanwhile
+            return
         if frames_THW3.nbytes > self.max_bytes:
             self._too_big.add(path)  # later reads of it decode just their range
             return

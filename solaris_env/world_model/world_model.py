@@ -67,6 +67,7 @@ expected value (shapes, dtypes, player count, non-finite actions).
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 import math
@@ -401,7 +402,7 @@ class WorldModel:
     def __init__(self, config: WorldModelConfig, dit: WorldDiT, vae: CausalVideoVAE, image_encoder: ImageEncoder):
         graphdefs, params = zip(*(nnx.split(m) for m in (dit, vae, image_encoder)))
         programs = Programs(config, tuple(graphdefs))
-        self._setup(config, programs, programs.step_params(tuple(params)))  # the only copy kept
+        self._setup(config, programs, on_host(programs.step_params, tuple(params)))  # the only copy kept
 
     def _setup(self, config: WorldModelConfig, programs: Programs, step_params: StepParams) -> None:
         self._cfg = config
@@ -426,14 +427,16 @@ class WorldModel:
     def from_config(cls, config: WorldModelConfig, seed: int = 0) -> "WorldModel":
         """Random initialisation (the modules' own initialisers, compiled with an RBG key for speed)."""
         graphdefs, initialise = _initializer(config)
-        states = initialise(jax.random.key(seed, impl="unsafe_rbg"))
+        with _host_default():
+            states = initialise(jax.random.key(seed, impl="unsafe_rbg"))
         return cls(config, *(nnx.merge(g, s) for g, s in zip(graphdefs, states)))
 
     @classmethod
     def load(cls, path, config: WorldModelConfig | None = None) -> "WorldModel":
         """Load our checkpoint (``save``) or an official orbax directory (``solaris.pt``, ``vae.pt``,
         ``clip.pt``; ``config`` defaults to the solaris preset). See ``checkpoint``."""
-        config, modules = checkpoint.load_modules(path, config)
+        with _host_default():
+            config, modules = checkpoint.load_modules(path, config)
         return cls(config, *modules)
 
     def with_sampler(self, sampler: SamplerConfig) -> "WorldModel":
@@ -456,7 +459,7 @@ class WorldModel:
     def params(self) -> tuple:
         """(dit, vae, image_encoder) parameter states, the DiT's blocks stacked on a layer axis (the
         checkpoint and training layout; built from ``step_params`` on each call)."""
-        return self.programs.stacked_params(self._step_params)
+        return on_host(self.programs.stacked_params, self._step_params)
 
     @property
     def step_params(self) -> StepParams:
@@ -592,6 +595,38 @@ def _initializer(config: WorldModelConfig):
                 nnx.state(ImageEncoder(config.image_encoder, rngs=nnx.Rngs(k_enc))))
 
     return graphdefs, jax.jit(make)
+
+
+def _host_default():
+    """Where the default backend is an accelerator: a context in which new arrays and computations go to the
+    host CPU (``jax.default_device``); elsewhere nothing changes."""
+    if jax.default_backend() == "cpu":
+        return contextlib.nullcontext()
+    return jax.default_device(jax.local_devices(backend="cpu")[0])
+
+
+def on_host(fn, tree):
+    """``fn(tree)`` computed on the host CPU, its result on the default device, uncommitted.
+
+    For the parameter layouts (random initialisation, the DiT blocks' unstacking and stacking): on an
+    accelerator each of their small programs compiles alone, in seconds each on a GPU (a lent H200 spent
+    ~50 s building tiny16 before its first VAE step) and in milliseconds on the CPU. On a CPU backend this
+    is ``fn(tree)``."""
+    if jax.default_backend() == "cpu":
+        return fn(tree)
+    host = jax.local_devices(backend="cpu")[0]
+    with jax.default_device(host):
+        out = fn(jax.device_put(tree, host))
+    return jax.tree.map(_to_default_device, out)
+
+
+def _to_default_device(a):
+    """A host array as a new, uncommitted array on the default device (one transfer; keys keep their type)."""
+    if not isinstance(a, jax.Array):
+        return a
+    if jnp.issubdtype(a.dtype, jax.dtypes.prng_key):
+        return jax.random.wrap_key_data(_to_default_device(jax.random.key_data(a)), impl=jax.random.key_impl(a))
+    return jnp.asarray(np.asarray(a))
 
 
 def param_count(model: WorldModel) -> dict[str, int]:

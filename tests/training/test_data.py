@@ -409,24 +409,32 @@ def test_latent_cache_hit_miss_invalidation(duet, tmp_path):
 
     def encode(frames_THW3):
         calls.append(frames_THW3.shape)
-        return frames_THW3.reshape(len(frames_THW3), -1).mean(1).astype(np.float32)
+        return {"latents": frames_THW3.reshape(len(frames_THW3), -1).mean(1).astype(np.float32),
+                "first": frames_THW3[0]}
 
     src = tmp_path / "ep.mp4"
     shutil.copy2(duet.recordings(0)[0].video, src)
-    cache = LatentCache(tmp_path / "cache", fingerprint="fake-v1")
-    first = cache.get_or_encode(src, encode)
+    cache = LatentCache(tmp_path / "cache", fingerprint="fake-v1", tensors=("latents", "first"))
+    first = cache.get_or_encode(src, encode)["latents"]
     assert len(calls) == 1 and calls[0][1:] == (RES, RES, 3) and first.shape == (calls[0][0],)
-    np.testing.assert_array_equal(cache.get_or_encode(src, encode), first)
+    hit = cache.get_or_encode(src, encode)
+    np.testing.assert_array_equal(hit["latents"], first)
+    assert hit["first"].shape == (RES, RES, 3) and hit["first"].dtype == np.uint8
     assert len(calls) == 1 and cache.stats == {"misses": 1, "hits": 1}
+    # a file of another layout (only the latents) is stale; an encoder that returns other names is an error
+    assert LatentCache(tmp_path / "cache", fingerprint="fake-v1").get(src) is None
+    with pytest.raises(ValueError, match=r"returned tensors \['first', 'latents'\], expected \['latents'\]"):
+        LatentCache(tmp_path / "cache", fingerprint="fake-v1").get_or_encode(src, encode)
 
+    calls.clear()
     cache.get_or_encode(src, encode, obs_size=(16, 16))  # another frame size: stale, re-encoded
-    assert len(calls) == 2 and calls[1][1:] == (16, 16, 3)
-    LatentCache(tmp_path / "cache", fingerprint="fake-v2").get_or_encode(src, encode)  # another encoder
-    assert len(calls) == 3
+    assert len(calls) == 1 and calls[0][1:] == (16, 16, 3)
+    LatentCache(tmp_path / "cache", fingerprint="fake-v2", tensors=("latents", "first")).get_or_encode(src, encode)
+    assert len(calls) == 2  # another encoder
     st = src.stat()
     os.utime(src, ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))  # the video changed
-    np.testing.assert_array_equal(cache.get_or_encode(src, encode), first)
-    assert len(calls) == 4 and cache.stats["stale"] == 2
+    np.testing.assert_array_equal(cache.get_or_encode(src, encode)["latents"], first)
+    assert len(calls) == 3 and cache.stats["stale"] == 2
     cache.get_or_encode(src, encode)
-    assert len(calls) == 4
+    assert len(calls) == 3
     assert sorted(p.name for p in (tmp_path / "cache").iterdir() if p.name.startswith(".")) == []  # no temp files

@@ -102,8 +102,10 @@ def test_build_with_threads_writes_the_same_cache_as_one_worker(root, cfg, modul
     assert many.cache.stats["misses"] == videos and many.build() == videos  # all in memory: nothing looked up again
     assert many.cache.stats["misses"] + many.cache.stats["hits"] == videos
     assert sorted(p.name for p in one.cache.dir.iterdir()) == sorted(p.name for p in many.cache.dir.iterdir())
-    for video, latents in one._latents.items():
-        np.testing.assert_array_equal(many._latents[video], latents)
+    for video, tensors in one._latents.items():
+        assert sorted(tensors) == ["anchor_frames", "latents"]
+        for name, value in tensors.items():
+            np.testing.assert_array_equal(many._latents[video][name], value)
     with pytest.raises(ValueError, match="workers must be >= 1"):
         latent_clips(dataset, cfg, modules[1], tmp_path / "bad", canonical_dir=root / "duet").build(workers=0)
 

@@ -228,3 +228,25 @@ def test_install_takes_a_sharded_sprint_model_with_its_lineage(test_model, tmp_p
     assert json.loads((installed / LINEAGE_FILE).read_text()) == {"generation": 1}
     for a, b in zip(_leaves(WorldModel.load(src)), _leaves(WorldModel.load(installed))):
         np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.slow
+def test_a_vae_sprint_from_scratch_records_its_first_step_speed_and_held_out_psnr(tiny_duet, tmp_path):
+    """The first call of a GPU session (``sprint-tiny16-vae.json``, docs/training.md) on the test preset: the
+    VAE alone, from scratch; its lineage says when the first step ended, the speed, and the held-out PSNR."""
+    from training.config_files import read_json_config
+    from training.sprint import CONFIG_DIR
+
+    config = read_json_config(CONFIG_DIR / "sprint-test.json")
+    config["fractions"] = {"vae": 1.0}
+    (tmp_path / "vae.json").write_text(json.dumps(config))
+    shutil.copytree(tiny_duet / "duet", tmp_path / "data" / "duet")
+    assert cli.main(["sprint", "--preset", "test", "--config", str(tmp_path / "vae.json"), "--data",
+                     str(tmp_path / "data"), "--out", str(tmp_path / "out"), "--budget-min", "1.5"]) == 0
+    lineage = json.loads((tmp_path / "out" / "model" / LINEAGE_FILE).read_text())
+    (stage,) = [s for s in lineage["stages"] if s["status"] == "ran"]
+    assert stage["stage"] == "vae" and stage["steps"] >= 1 and 0 < stage["first_step_s"] <= stage["wall_s"]
+    assert stage["steps_per_s"] > 0
+    held_out = stage["held_out"]  # the test preset's VAE clips: 5 frames, 1 + 1 latents
+    assert held_out["num_frames"] == 5 and len(held_out["test_psnr_by_latent_db"]) == 2
+    assert 0 < held_out["test_psnr_db"] < 60

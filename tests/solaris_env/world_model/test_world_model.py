@@ -413,3 +413,23 @@ def test_action_guidance_leaves_a_no_op_step_alone_and_moves_an_acting_one(model
 def test_action_guidance_must_be_finite_and_non_negative(g):
     with pytest.raises(ValueError, match="action_guidance"):
         SamplerConfig(action_guidance=g)
+
+
+def test_parameter_layouts_on_the_host_give_the_same_model_on_the_default_device(monkeypatch):
+    """Where the default backend is an accelerator, the random initialisation and the DiT blocks' (un)stacking
+    run on the host CPU (``world_model.on_host``; docs/training.md, "The GPU session"). Posing as a GPU backend
+    on this CPU exercises that path: the same parameters come back, as uncommitted arrays."""
+    from solaris_env.world_model import world_model as wm
+
+    reference = wm.WorldModel.from_preset("test", seed=3)
+    monkeypatch.setattr(wm.jax, "default_backend", lambda: "gpu")
+    model = wm.WorldModel.from_preset("test", seed=3)
+    params, step_leaves = model.params, jax.tree.leaves(model.step_params)
+    monkeypatch.undo()
+    got, want = jax.tree.leaves(params), jax.tree.leaves(reference.params)
+    assert len(got) == len(want) and len(step_leaves) == len(jax.tree.leaves(reference.step_params))
+    for a, b in zip(got, want):
+        assert a.dtype == b.dtype and np.array_equal(np.asarray(a), np.asarray(b))
+    assert not any(leaf.committed for leaf in got + step_leaves)
+    key = jax.random.key(0)  # typed keys keep their type through the move
+    assert jax.dtypes.issubdtype(wm._to_default_device(key).dtype, jax.dtypes.prng_key)
