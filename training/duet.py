@@ -20,6 +20,8 @@ from __future__ import annotations
 
 import json
 import logging
+import os
+import threading
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -84,26 +86,57 @@ def _render_times(records: list, path: Path) -> np.ndarray:
 
 
 # Validated recordings by (video, actions, their sizes and mtimes): every stage of a sprint and every rescan of
-# its growing data indexes the same finished episodes again, at ~50 ms each (mostly the JSON).
+# its growing data indexes the same finished episodes again, at ~50 ms each (mostly the JSON). In this process
+# they are remembered; across processes (a later `solaris-train` stage, the second call of a GPU session) a
+# sidecar file holds each one's arrays: ``<split>/.index/<video name>.npz`` (docs/data-format.md §7.1).
 _RECORDINGS: dict[tuple, BotRecording] = {}
 _RECORDINGS_MAX = 20_000
+INDEX_DIR = ".index"
 
 
 def load_bot_recording(video: Path, actions: Path) -> BotRecording:
     """Validate one bot's mp4 + action JSON and convert its actions; raises EpisodeError. A pair of files
-    validated before in this process, unchanged since (size and mtime), is not read again."""
+    validated before, unchanged since (names, sizes and mtimes), is not read again: from this process's memory,
+    else from its sidecar file, which the first validation writes (where the directory is writable)."""
     try:
-        key = tuple((str(p), st.st_size, st.st_mtime_ns) for p, st in ((p, p.stat()) for p in (video, actions)))
+        key = tuple((p.name, st.st_size, st.st_mtime_ns) for p, st in ((p, p.stat()) for p in (video, actions)))
     except OSError:
-        key = None  # let the checks below name the missing file
-    if key is not None and (known := _RECORDINGS.get(key)) is not None:
+        return _validated_recording(video, actions)  # it names the missing file
+    memo_key = (str(video), str(actions), key)
+    if (known := _RECORDINGS.get(memo_key)) is not None:
         return known
-    recording = _validated_recording(video, actions)
-    if key is not None:
-        if len(_RECORDINGS) >= _RECORDINGS_MAX:
-            _RECORDINGS.pop(next(iter(_RECORDINGS)))
-        _RECORDINGS[key] = recording
+    sidecar = video.parent / INDEX_DIR / f"{video.name}.npz"
+    recording = _from_sidecar(sidecar, repr(key), video, actions)
+    if recording is None:
+        recording = _validated_recording(video, actions)
+        _write_sidecar(sidecar, repr(key), recording)
+    if len(_RECORDINGS) >= _RECORDINGS_MAX:
+        _RECORDINGS.pop(next(iter(_RECORDINGS)))
+    _RECORDINGS[memo_key] = recording
     return recording
+
+
+def _from_sidecar(path: Path, key: str, video: Path, actions: Path) -> BotRecording | None:
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            if str(z["key"]) != key:
+                return None  # written for another version of the files
+            return BotRecording(video, actions, z["times_T"], z["act_T25"])
+    except (OSError, KeyError, ValueError):  # none yet, or unreadable: validate again
+        return None
+
+
+def _write_sidecar(path: Path, key: str, recording: BotRecording) -> None:
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.{threading.get_ident()}.tmp")
+    try:
+        path.parent.mkdir(exist_ok=True)
+        with open(tmp, "wb") as f:
+            np.savez(f, key=np.array(key), times_T=recording.times_T, act_T25=recording.act_T25)
+        os.replace(tmp, path)
+    except OSError as err:  # a read-only dataset: validate in every process
+        logger.debug("episode index: no sidecar for %s (%s)", recording.video.name, err)
+    finally:
+        tmp.unlink(missing_ok=True)
 
 
 def _validated_recording(video: Path, actions: Path) -> BotRecording:

@@ -438,3 +438,32 @@ def test_latent_cache_hit_miss_invalidation(duet, tmp_path):
     cache.get_or_encode(src, encode)
     assert len(calls) == 3
     assert sorted(p.name for p in (tmp_path / "cache").iterdir() if p.name.startswith(".")) == []  # no temp files
+
+
+def test_the_episode_index_is_kept_beside_the_data_and_follows_the_files(root, tmp_path, monkeypatch):
+    """A validated recording is written to ``<split>/.index/<video>.npz``; a later process (here: the memo
+    cleared) reads it instead of the JSON, and a file that changed since is validated again."""
+    from training import duet as D
+
+    split = tmp_path / "duet" / "train"
+    shutil.copytree(root / "duet" / "train", split)
+    first = DuetDataset(tmp_path, "train")
+    sidecars = sorted((split / D.INDEX_DIR).glob("*.npz"))
+    assert len(sidecars) == 2 * first.num_episodes
+
+    D._RECORDINGS.clear()
+    monkeypatch.setattr(D, "_read_records", lambda path: pytest.fail(f"{path.name} was read again"))
+    again = DuetDataset(tmp_path, "train")
+    for i in first.valid_ids:
+        for a, b in zip(first.recordings(i), again.recordings(i)):
+            np.testing.assert_array_equal(a.act_T25, b.act_T25)
+            np.testing.assert_array_equal(a.times_T, b.times_T)
+    monkeypatch.undo()
+
+    D._RECORDINGS.clear()
+    actions = first.recordings(0)[0].actions
+    records = json.loads(actions.read_text())
+    records[0]["action"]["forward"] = not records[0]["action"]["forward"]  # the recording changed: validated again
+    actions.write_text(json.dumps(records))
+    changed = DuetDataset(tmp_path, "train").recordings(0)[0]
+    assert changed.act_T25[0].tolist() != first.recordings(0)[0].act_T25[0].tolist()
