@@ -45,13 +45,20 @@ import jax.numpy as jnp
 import numpy as np
 from flax import nnx
 
+from solaris_env.spaces import MODEL_ACTION_DIM
 from solaris_env.world_model.action_module import left_pad_actions
 from solaris_env.world_model.conditioning import first_frame_mask
 from solaris_env.world_model.config import WorldModelConfig
 from solaris_env.world_model.dit import to_stream
 from solaris_env.world_model.world_model import frames_to_model
 from training.duet import DuetDataset
-from training.episodes import DECODE_ERROR, NOT_READY, EpisodeError, SegmentMP, SegmentSP
+from training.episodes import (
+    DECODE_ERROR,
+    NOT_READY,
+    EpisodeError,
+    SegmentMP,
+    SegmentSP,
+)
 from training.latent_cache import LatentCache
 from training.samplers import draw_loaded
 
@@ -306,10 +313,19 @@ class LatentClips:
         return np.stack(x0s), np.stack(firsts), np.stack(acts, axis=1)
 
     def next_batch(self, sampler, batch_size: int, num_frames: int) -> dict[str, np.ndarray]:
-        """Draw ``batch_size`` clips (skipping episodes that fail, like ``training.samplers.next_batch``)."""
+        """Draw ``batch_size`` clips (skipping episodes that fail, like ``training.samplers.next_batch``);
+        shaped as ``batch_spec`` says."""
         out = draw_loaded(sampler, lambda segment: self.load(segment, num_frames), batch_size)
         x0, first, act = (np.stack(parts) for parts in zip(*out))
         return {"x0": x0, "first": first, "act": act}
+
+
+def batch_spec(cfg: WorldModelConfig, batch_size: int, num_frames: int) -> dict[str, jax.ShapeDtypeStruct]:
+    """The shapes and dtypes of ``LatentClips.next_batch`` (P = ``cfg.num_players``), for compiling ahead."""
+    b, p, f = batch_size, cfg.num_players, cfg.vae.latent_frames(num_frames)
+    return {"x0": jax.ShapeDtypeStruct((b, p, f, cfg.latent_height, cfg.latent_width, cfg.latent_channels), np.float32),
+            "first": jax.ShapeDtypeStruct((b, p, cfg.frame_height, cfg.frame_width, 3), np.uint8),
+            "act": jax.ShapeDtypeStruct((b, num_frames, p, MODEL_ACTION_DIM), np.float32)}
 
 
 def make_prepare_latents(cfg: WorldModelConfig, vae, encoder):
@@ -350,4 +366,4 @@ def latent_clips(dataset, cfg: WorldModelConfig, vae, cache_root: Path, canonica
     return LatentClips(dataset, cache, encoder, canonical_dir)
 
 
-__all__ = ["LatentClips", "VideoEncoder", "latent_clips", "make_prepare_latents", "snap_start", "vae_fingerprint"]
+__all__ = ["LatentClips", "VideoEncoder", "batch_spec", "latent_clips", "make_prepare_latents", "snap_start", "vae_fingerprint"]

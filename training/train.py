@@ -21,6 +21,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -371,15 +372,42 @@ def _frozen_player_embedding(params) -> Any:
         lambda path, _: "frozen" if any(getattr(k, "key", None) == "player_embed" for k in path) else "train", params)
 
 
-def clip_stream(out: Path, data_dir: Path, cfg: WorldModelConfig, vae, encoder,
+def compile_ahead(step_fn, state: Any, batch_shapes: Any, fsdp: bool) -> threading.Thread:
+    """Compile the jitted ``step_fn`` for ``run_loop``'s placement of ``state`` and of a batch shaped like
+    ``batch_shapes`` on a background thread, which the caller joins before the first step; JAX keeps the
+    executable, so that step compiles nothing. A DiT stage's train step compiles while its latent cache starts
+    (on a GPU each took a minute or more, one after the other). A failure is logged, and the first step then
+    compiles as before."""
+    from training.distributed import batch_sharding, make_mesh, state_shardings
+
+    mesh = make_mesh()
+    placed = lambda x, sharding: jax.ShapeDtypeStruct(np.shape(x), x.dtype, sharding=sharding)
+    abstract_state = jax.tree.map(placed, state, state_shardings(state, mesh, fsdp))
+    abstract_batch = jax.tree.map(lambda x: placed(x, batch_sharding(mesh)), batch_shapes)
+
+    def work():
+        t0 = time.perf_counter()
+        try:
+            step_fn.lower(abstract_state, abstract_batch).compile()
+            logger.info("train step compiled ahead in %.0f s", time.perf_counter() - t0)
+        except Exception as err:  # noqa: BLE001 - the first step compiles it instead
+            logger.warning("compiling the train step ahead failed (%s); the first step compiles it", err)
+
+    thread = threading.Thread(target=work, name="compile-ahead", daemon=True)
+    thread.start()
+    return thread
+
+
+def clip_stream(out: Path, data_dir: Path, cfg: WorldModelConfig, vae,
                 sc: FlowStageConfig | SelfForcingStageConfig, seed: int,
                 single_player: bool, deadline: float | None = None):
-    """(LatentClips, resumable sampler, jitted batch preparation) of a DiT stage; the latent cache of the
+    """(LatentClips, resumable sampler) of a DiT stage (its batches: ``latents.make_prepare_latents`` of
+    ``clips.next_batch``); the latent cache of the
     stage's VAE lives in ``out/latents``. Without a ``deadline`` (epoch seconds) or a growing dataset it is
     built whole before training; with either, a short share of the stage's time is spent on it and the rest is
     encoded in the background while batches come from the ready episodes (``LatentClips.build_for_stage``).
     The caller ``close()``s the clips when the stage ends."""
-    from training.latents import latent_clips, make_prepare_latents
+    from training.latents import latent_clips
 
     dataset, sampler = (vpt_stream if single_player else duet_stream)(data_dir, cfg, sc.num_frames, seed,
                                                                       rescan_s=sc.rescan_s)
@@ -389,7 +417,7 @@ def clip_stream(out: Path, data_dir: Path, cfg: WorldModelConfig, vae, encoder,
     logger.info("latent cache: %d videos ready in %.0f s (%s)", n, time.perf_counter() - t0, dict(clips.cache.stats))
     if deadline is not None or sc.rescan_s:
         clips.encode_in_background()
-    return clips, sampler, make_prepare_latents(cfg, vae, encoder)
+    return clips, sampler
 
 
 def train_flow(stage: str, out: str | Path, data_dir: str | Path, sc: FlowStageConfig, seed: int = 0,
@@ -420,8 +448,13 @@ def train_flow(stage: str, out: str | Path, data_dir: str | Path, sc: FlowStageC
         train_step = make_rollout_regression_step(graphdef, tx, ema_decay)
     else:
         train_step = make_train_step(graphdef, fs.entry_point, fs.noise_type, tx, ema_decay)
-    clips, sampler, prepare = clip_stream(out, data_dir, cfg, vae, encoder, sc, seed, fs.single_player, deadline)
+    from training.latents import batch_spec, make_prepare_latents
+
     batch_size = local_batch_size(sc.batch_size)
+    prepare = make_prepare_latents(cfg, vae, encoder)
+    ahead = compile_ahead(train_step, state, jax.eval_shape(prepare, batch_spec(cfg, batch_size, sc.num_frames)), fsdp)
+    clips, sampler = clip_stream(out, data_dir, cfg, vae, sc, seed, fs.single_player, deadline)
+    ahead.join()
 
     def draw():
         return prepare(clips.next_batch(sampler, batch_size, sc.num_frames))
@@ -467,6 +500,7 @@ def train_self_forcing(out: str | Path, data_dir: str | Path, sc: SelfForcingSta
     generator mode is ``sc.generator``: "checkpointed" or "naive". ``deadline`` and ``on_model`` as
     ``train_flow``'s."""
     from training import self_forcing as SF
+    from training.latents import make_prepare_latents
 
     out, data_dir = Path(out), Path(data_dir)
     steps = steps or sc.steps
@@ -481,8 +515,8 @@ def train_self_forcing(out: str | Path, data_dir: str | Path, sc: SelfForcingSta
                            "naive": SF.make_naive_generator_step}[sc.generator]
     iteration = SF.make_iteration(make_generator_step(graphs, gen_tx, sf_cfg),
                                   SF.make_critic_step(graphs, critic_tx, sf_cfg), sf_cfg)
-    clips, sampler, prepare = clip_stream(out, data_dir, cfg, vae, encoder, sc, seed, single_player=False,
-                                          deadline=deadline)
+    prepare = make_prepare_latents(cfg, vae, encoder)
+    clips, sampler = clip_stream(out, data_dir, cfg, vae, sc, seed, single_player=False, deadline=deadline)
     batch_size = local_batch_size(sc.batch_size)
 
     def draw():

@@ -273,3 +273,28 @@ def test_rollout_regression_step_trains_and_keeps_the_ema(modules, batch):
     decay = float(ema_decay_at(0.9, 0))
     for e, b, p in zip(jax.tree.leaves(state.ema), jax.tree.leaves(before), jax.tree.leaves(state.params)):
         np.testing.assert_allclose(e, b + (1 - decay) * (np.asarray(p) - b), rtol=1e-5, atol=1e-6)
+
+
+def test_a_step_compiled_ahead_is_not_compiled_again_by_the_loop():
+    """``train.compile_ahead`` compiles for ``run_loop``'s placement (``shard_train_state``, ``shard_batch``), so
+    the first step runs the kept executable; with another batch shape it would compile again."""
+    from jax import monitoring
+
+    from training.distributed import make_mesh, shard_batch, shard_train_state
+    from training.train import compile_ahead
+
+    step = jax.jit(lambda st, b: ({"w": st["w"] * 0.5 + b["x"].mean(0)}, {"loss": b["x"].sum()}), donate_argnums=(0,))
+    state = {"w": jnp.ones((8, 16), jnp.float32)}
+    shapes = {"x": jax.ShapeDtypeStruct((4, 8, 16), np.float32)}
+    compile_ahead(step, state, shapes, fsdp=False).join()
+    compiles = []
+    listener = lambda name, secs, **kw: compiles.append(name) if name.endswith("backend_compile_duration") else None
+    monitoring.register_event_duration_secs_listener(listener)
+    try:
+        mesh = make_mesh()
+        state, metrics = step(shard_train_state(state, mesh), shard_batch({"x": np.ones((4, 8, 16), np.float32)}, mesh))
+        assert float(metrics["loss"]) == 4 * 8 * 16 and compiles == []
+        step(state, shard_batch({"x": np.ones((2, 8, 16), np.float32)}, mesh))  # another shape: compiled now
+        assert len(compiles) == 1
+    finally:
+        monitoring.unregister_event_duration_listener(listener)
