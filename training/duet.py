@@ -85,34 +85,25 @@ def _render_times(records: list, path: Path) -> np.ndarray:
     return times_T
 
 
-# Validated recordings by (video, actions, their sizes and mtimes): every stage of a sprint and every rescan of
-# its growing data indexes the same finished episodes again, at ~50 ms each (mostly the JSON). In this process
-# they are remembered; across processes (a later `solaris-train` stage, the second call of a GPU session) a
-# sidecar file holds each one's arrays: ``<split>/.index/<video name>.npz`` (docs/data-format.md §7.1).
-_RECORDINGS: dict[tuple, BotRecording] = {}
-_RECORDINGS_MAX = 20_000
+# A validated recording's arrays, kept beside the data: every stage of a sprint, every rescan of its growing data
+# and every later process (a `solaris-train` stage, the second call of a GPU session) indexes the same finished
+# episodes again, at ~50 ms each (mostly the JSON). ``<split>/.index/<video name>.npz``, docs/data-format.md §7.2.
 INDEX_DIR = ".index"
 
 
 def load_bot_recording(video: Path, actions: Path) -> BotRecording:
     """Validate one bot's mp4 + action JSON and convert its actions; raises EpisodeError. A pair of files
-    validated before, unchanged since (names, sizes and mtimes), is not read again: from this process's memory,
-    else from its sidecar file, which the first validation writes (where the directory is writable)."""
+    validated before, unchanged since (names, sizes and mtimes), is read from its sidecar file, which the first
+    validation writes (where the directory is writable)."""
     try:
-        key = tuple((p.name, st.st_size, st.st_mtime_ns) for p, st in ((p, p.stat()) for p in (video, actions)))
+        key = repr(tuple((p.name, st.st_size, st.st_mtime_ns) for p, st in ((p, p.stat()) for p in (video, actions))))
     except OSError:
         return _validated_recording(video, actions)  # it names the missing file
-    memo_key = (str(video), str(actions), key)
-    if (known := _RECORDINGS.get(memo_key)) is not None:
-        return known
     sidecar = video.parent / INDEX_DIR / f"{video.name}.npz"
-    recording = _from_sidecar(sidecar, repr(key), video, actions)
+    recording = _from_sidecar(sidecar, key, video, actions)
     if recording is None:
         recording = _validated_recording(video, actions)
-        _write_sidecar(sidecar, repr(key), recording)
-    if len(_RECORDINGS) >= _RECORDINGS_MAX:
-        _RECORDINGS.pop(next(iter(_RECORDINGS)))
-    _RECORDINGS[memo_key] = recording
+        _write_sidecar(sidecar, key, recording)
     return recording
 
 

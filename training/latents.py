@@ -12,9 +12,10 @@ runs at full resolution), so stages 1-4 read latents from a cache made once per 
   a start frame, later latents as the streaming encoder sees them (with the video's causal history
   instead of the clip's, a negligible difference beyond the encoder's receptive field).
 * the anchor frames themselves (``anchor_frames[a]`` = frame ``k*a``, uint8): a clip's first frame, which the
-  image encoder reads. Kept with the latents, a batch needs no video decoded: reading them from the videos
-  (a whole video decoded per cache miss, ~60 ms) took ~5 s per batch of 64 clips on this CPU, far longer than
-  a GPU's step.
+  image encoder reads. Kept with the latents, a batch needs no video decoded. Read from the videos, each
+  frame-cache miss decoded a whole video (~60 ms on this CPU): a cold batch of 64 clips took 2.1 s, and with a
+  sprint's ~2300 videos against a 4 GB frame cache about 5 s per batch (an estimate), far longer than a GPU's
+  step.
 
 Segments come from the usual resumable samplers (``training.samplers``); their starts are snapped down
 to the anchor grid: record start ``s`` becomes ``s' = k * floor((s + 1) / k) - 1`` so that the first

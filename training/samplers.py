@@ -32,7 +32,7 @@ from training.vpt import VPTDataset
 logger = logging.getLogger(__name__)
 
 # Segments of a batch load on this many threads (``next_batch``): decoding and resizing release the GIL, and a
-# GPU step is faster than one thread decodes its batch (docs/training.md, "The data loader").
+# GPU step is faster than one thread decodes its batch (docs/data-format.md §7.7).
 LOAD_THREADS = max(1, min(8, os.cpu_count() or 1))
 _load_pool: ThreadPoolExecutor | None = None
 

@@ -160,7 +160,7 @@ def psnr_uint8(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def latent_statistics(mu_chunks: list) -> tuple[tuple[float, ...], tuple[float, ...]]:
-    """Per-channel mean and std of posterior means (each chunk (..., z_dim), e.g. ``make_reconstruct``'s)."""
+    """Per-channel mean and std of posterior means (each chunk (..., z_dim), e.g. ``make_encode_reconstruct``'s)."""
     total, total_sq, count = 0.0, 0.0, 0
     for mu in mu_chunks:
         flat = np.asarray(mu, np.float64).reshape(-1, np.shape(mu)[-1])

@@ -441,8 +441,8 @@ def test_latent_cache_hit_miss_invalidation(duet, tmp_path):
 
 
 def test_the_episode_index_is_kept_beside_the_data_and_follows_the_files(root, tmp_path, monkeypatch):
-    """A validated recording is written to ``<split>/.index/<video>.npz``; a later process (here: the memo
-    cleared) reads it instead of the JSON, and a file that changed since is validated again."""
+    """A validated recording is written to ``<split>/.index/<video>.npz``; a later read takes it instead of the
+    JSON, and a file that changed since is validated again."""
     from training import duet as D
 
     split = tmp_path / "duet" / "train"
@@ -451,7 +451,6 @@ def test_the_episode_index_is_kept_beside_the_data_and_follows_the_files(root, t
     sidecars = sorted((split / D.INDEX_DIR).glob("*.npz"))
     assert len(sidecars) == 2 * first.num_episodes
 
-    D._RECORDINGS.clear()
     monkeypatch.setattr(D, "_read_records", lambda path: pytest.fail(f"{path.name} was read again"))
     again = DuetDataset(tmp_path, "train")
     for i in first.valid_ids:
@@ -460,7 +459,6 @@ def test_the_episode_index_is_kept_beside_the_data_and_follows_the_files(root, t
             np.testing.assert_array_equal(a.times_T, b.times_T)
     monkeypatch.undo()
 
-    D._RECORDINGS.clear()
     actions = first.recordings(0)[0].actions
     records = json.loads(actions.read_text())
     records[0]["action"]["forward"] = not records[0]["action"]["forward"]  # the recording changed: validated again
