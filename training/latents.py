@@ -27,8 +27,7 @@ anchor frame's pixels per batch (it is cheap).
 A stage with a deadline or a growing dataset (``solaris-train sprint``) does not wait for the whole cache:
 ``LatentClips.build`` encodes what fits a short share of the stage's time (at least ``MIN_READY_EPISODES``
 episodes), then ``encode_in_background`` keeps encoding the rest and every episode the background collect adds,
-while batches are drawn from the episodes whose latents are ready (a draw that lands on one that is not is drawn
-again, like a corrupt episode). Encoding a video inside the training step instead stalled the DiT stages: on 2
+while batches are drawn among the episodes whose latents are ready (``LatentClips.ready_candidates``). Encoding a video inside the training step instead stalled the DiT stages: on 2
 CPU cores, 5 steps in 11 minutes.
 """
 
@@ -157,6 +156,7 @@ class LatentClips:
         self._stop = threading.Event()
         self._background: threading.Thread | None = None
         self._background_error: BaseException | None = None
+        self._ready_memo: tuple | None = None  # (key, ready_candidates' answer), see there
 
     def _player_recordings(self, segment) -> list[tuple[Path, np.ndarray, int]]:
         """[(video, act_T25, start)] per player."""
@@ -192,9 +192,7 @@ class LatentClips:
         ids = self.dataset.valid_ids if episode_ids is None else episode_ids
         videos = []
         for episode_id in ids:
-            segment = (SegmentMP(episode_id, 0, 0) if isinstance(self.dataset, DuetDataset)
-                       else SegmentSP(episode_id, 0))
-            videos += [video for video, _, _ in self._player_recordings(segment)
+            videos += [video for video, _, _ in self._player_recordings(self._probe_segment(episode_id))
                        if video not in self._latents and video not in self._failed]
         return videos
 
@@ -293,6 +291,22 @@ class LatentClips:
         if self._background is not None:
             self._background.join()
 
+    def ready_candidates(self, sampler) -> list[int] | None:
+        """The sampler's valid candidates whose videos all have latents, in the sampler's order; None when that
+        is all of them or none (then draws go to every candidate, those not ready drawn again). Drawing among
+        the ready ones instead: the first batches of a sprint's stage have a few ready episodes out of a
+        thousand, and rejecting the rest cost 0.24 s per batch of 64 at 450 episodes (measured on the CPU)."""
+        key = (id(sampler), self.num_ready, len(sampler.candidates), len(self._failed))
+        if self._ready_memo is None or self._ready_memo[0] != key:
+            ready = [e for e in sampler.candidates if self.dataset.is_valid(e) and all(
+                video in self._latents for video, _, _ in self._player_recordings(self._probe_segment(e)))]
+            self._ready_memo = (key, ready if 0 < len(ready) < len(sampler.candidates) else None)
+        return self._ready_memo[1]
+
+    def _probe_segment(self, episode_id: int):
+        """A segment of the episode, to list its videos."""
+        return SegmentMP(episode_id, 0, 0) if isinstance(self.dataset, DuetDataset) else SegmentSP(episode_id, 0)
+
     def load(self, segment, num_frames: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """-> (x0 (P, F, h, w, C) f32, first frames (P, H, W, 3) uint8, actions (T, P, 25) f32)."""
         k = self.k
@@ -315,8 +329,10 @@ class LatentClips:
 
     def next_batch(self, sampler, batch_size: int, num_frames: int) -> dict[str, np.ndarray]:
         """Draw ``batch_size`` clips (skipping episodes that fail, like ``training.samplers.next_batch``);
-        shaped as ``batch_spec`` says."""
-        out = draw_loaded(sampler, lambda segment: self.load(segment, num_frames), batch_size)
+        shaped as ``batch_spec`` says. While the background encoder runs, the episodes are drawn among those
+        whose latents are ready (``ready_candidates``)."""
+        among = self.ready_candidates(sampler) if self._background is not None else None
+        out = draw_loaded(sampler, lambda segment: self.load(segment, num_frames), batch_size, among=among)
         x0, first, act = (np.stack(parts) for parts in zip(*out))
         return {"x0": x0, "first": first, "act": act}
 

@@ -64,15 +64,23 @@ class _ResumableSampler:
     def _draw(self, rng: np.random.Generator, episode_id: int):
         raise NotImplementedError
 
-    def next(self):
-        """The next segment; draws whose episode has since been marked invalid are passed over."""
+    @property
+    def candidates(self) -> tuple[int, ...]:
+        """The episode ids this sampler draws from."""
+        return tuple(self._candidates)
+
+    def next(self, among: Sequence[int] | None = None):
+        """The next segment; draws whose episode has since been marked invalid are passed over. ``among``
+        (non-empty, a subset of ``candidates``): draw the episode from these instead, e.g. the episodes whose
+        latents are ready (``training.latents.LatentClips.next_batch``); the same random stream per step."""
+        pool = self._candidates if among is None else among
         while True:
             rng = np.random.default_rng([self.seed, self.rank, self.step])
             self.step += 1
-            episode_id = self._candidates[int(rng.integers(len(self._candidates)))]
+            episode_id = pool[int(rng.integers(len(pool)))]
             if self.dataset.is_valid(episode_id):
                 return self._draw(rng, episode_id)
-            if not any(self.dataset.is_valid(i) for i in self._candidates):
+            if not any(self.dataset.is_valid(i) for i in pool):
                 raise ValueError(f"every episode of rank {self.rank} has been marked invalid "
                                  f"(skipped {dict(self.dataset.skipped)})")
 
@@ -263,8 +271,9 @@ def next_batch(dataset, sampler: _ResumableSampler, batch_size: int, num_frames:
                       num_frames)
 
 
-def draw_loaded(sampler, load, batch_size: int, pool: ThreadPoolExecutor | None = None) -> list:
-    """``batch_size`` results of ``load(sampler.next())``, drawing again when an episode fails (EpisodeError).
+def draw_loaded(sampler, load, batch_size: int, pool: ThreadPoolExecutor | None = None,
+                among: Sequence[int] | None = None) -> list:
+    """``batch_size`` results of ``load(sampler.next(among))``, drawing again when an episode fails (EpisodeError).
 
     With ``pool``, the loads of a batch run on its threads; the segments are still drawn one after another
     and kept in draw order. The result is deterministic given the sampler's state either way, and while no
@@ -279,7 +288,7 @@ def draw_loaded(sampler, load, batch_size: int, pool: ThreadPoolExecutor | None 
 
     out = []
     while len(out) < batch_size:
-        segments = [sampler.next() for _ in range(batch_size - len(out))]
+        segments = [sampler.next(among) for _ in range(batch_size - len(out))]
         results = pool.map(attempt, segments) if pool is not None else map(attempt, segments)
         out += [result for ok, result in results if ok]
     return out

@@ -212,6 +212,15 @@ def test_sampler_is_seeded_and_resumable(duet):
     np.testing.assert_array_equal(next_batch(duet, a, 2)["obs"], next_batch(duet, b, 2)["obs"])
 
 
+def test_sampler_draws_among_a_subset_on_the_same_stream(duet):
+    full, same, one = (MultiplayerSegmentSampler(duet, NUM_FRAMES, seed=3) for _ in range(3))
+    assert len(full.candidates) >= 2
+    assert [same.next(full.candidates) for _ in range(8)] == full.sample(8)
+    only = full.candidates[-1]
+    segments = [one.next([only]) for _ in range(8)]
+    assert {s.episode_id for s in segments} == {only} and one.step == 8
+
+
 def test_sampler_rank_partition(duet):
     for rank in (0, 1):
         segs = MultiplayerSegmentSampler(duet, NUM_FRAMES, seed=0, rank=rank, num_ranks=2).sample(10)
