@@ -149,7 +149,7 @@ def test_eval_layout_and_view_changes_after_camera_action(root):
     turning = np.abs(act_TP25[1:, 0, 23:]).sum(1) > 0
     idle = np.abs(act_TP25[1:, 0]).sum(1) == 0
     assert turning.sum() == len(cam_T) and idle.sum() == 4
-    assert diff_T[turning].min() > 2.0 > 1.0 > diff_T[idle].max(), (diff_T, turning)
+    assert diff_T[turning].min() > 2.0 and diff_T[idle].max() < 1.0, (diff_T, turning)
 
     segments = EvalSegments(root / "eval" / "eval_ids_rotationEval.json").segments()
     assert len(segments) == 1 and isinstance(segments[0], SegmentMP)
