@@ -99,12 +99,12 @@ class _Rescanning:
         self.rescan_s = float(rescan_s)
         self._next_scan = time.monotonic() + self.rescan_s
 
-    def next(self):
+    def next(self, among=None):
         if time.monotonic() >= self._next_scan:
             for episode_id in self.dataset.rescan():
                 self.add_episode(episode_id)
             self._next_scan = time.monotonic() + self.rescan_s
-        return super().next()
+        return super().next(among)
 
 
 class RescanningMultiplayerSampler(_Rescanning, MultiplayerSegmentSampler):
