@@ -27,8 +27,8 @@ anchor frame's pixels per batch (it is cheap).
 A stage with a deadline or a growing dataset (``solaris-train sprint``) does not wait for the whole cache:
 ``LatentClips.build`` encodes what fits a short share of the stage's time (at least ``MIN_READY_EPISODES``
 episodes), then ``encode_in_background`` keeps encoding the rest and every episode the background collect adds,
-while batches are drawn among the episodes whose latents are ready (``LatentClips.ready_candidates``). Encoding a video inside the training step instead stalled the DiT stages: on 2
-CPU cores, 5 steps in 11 minutes.
+while batches are drawn among the episodes whose latents are ready (``LatentClips.ready_candidates``). Encoding
+a video inside the training step instead stalled the DiT stages: on 2 CPU cores, 5 steps in 11 minutes.
 """
 
 from __future__ import annotations
