@@ -14,7 +14,9 @@ A dream can only show what its VAE reconstructs (docs/evaluation.md, "Autoencode
    instances: the five flat surfaces and ``normal`` worlds) are cut into windows of ``--window`` frames
    (1 + k n: a first frame, then whole latent chunks, as the env decodes them), at most ``--windows`` per video,
    and reconstructed. PSNR over all pixels of a surface's frames (the MSE pooled, as the VAE stage reports it).
-   Target: >= 28 dB on every surface.
+   Target: >= 28 dB on every surface. Next to it, per surface, the sharpness ratio (mean |Laplacian| of the
+   reconstructions over the truth's, ``dream_fidelity``'s sharpness): the ceiling of any dream of this VAE on
+   the fidelity benchmark's sharpness target (>= 0.75). No target of its own.
 2. **The judges on reconstructed eval episodes.** The eval sets' 257-frame windows (the five-task benchmark's,
    ``benchmarks.eval_tasks``) are reconstructed, and every judge query is asked about the reconstructed frame
    instead of the recorded one. Reported per task and eval type: the episode accuracy on the originals and on
@@ -78,16 +80,24 @@ def _psnr(sq: float | np.ndarray, count: int | np.ndarray):
     return np.round(10.0 * np.log10(255.0 ** 2 / np.maximum(np.asarray(sq) / count, 1e-12)), 2)
 
 
+def _sharpness_sum(frames_BTPHW3: np.ndarray) -> float:
+    """The sum over frames of the mean |Laplacian| (the fidelity benchmark's sharpness)."""
+    from benchmarks.dream_fidelity import sharpness_T
+
+    return float(sharpness_T(frames_BTPHW3.reshape((-1,) + frames_BTPHW3.shape[-3:])).sum())
+
+
 def psnr_by_surface(reconstruct: Reconstruct, windows: dict[str, np.ndarray], k: int, batch: int = 4
-                    ) -> tuple[dict[str, float], list[float], dict[str, np.ndarray]]:
+                    ) -> tuple[dict[str, float], list[float], dict[str, np.ndarray], dict[str, float]]:
     """PSNR (dB, the MSE pooled over the pixels) per surface; per latent of the window (the first frame,
     then each chunk of ``k`` frames) over all surfaces, which shows a decoder that degrades along a stream;
-    and per surface the reconstruction of the first window's middle frame (both players) for the contact
-    sheet."""
-    psnr, sample = {}, {}
+    per surface the reconstruction of the first window's middle frame (both players) for the contact
+    sheet; and per surface the sharpness ratio, mean |Laplacian| of the reconstructions over the truth's
+    (``dream_fidelity``'s sharpness: no dream can be sharper than its decoder makes the truth)."""
+    psnr, sample, sharpness = {}, {}, {}
     sq_by_frame, n_by_frame = 0.0, 0
     for surface, w in windows.items():
-        sq, count = 0.0, 0
+        sq, count, sharp_rec, sharp_truth = 0.0, 0, 0.0, 0.0
         for i in range(0, len(w), batch):
             chunk = w[i:i + batch]
             rec = reconstruct(chunk)
@@ -99,9 +109,12 @@ def psnr_by_surface(reconstruct: Reconstruct, windows: dict[str, np.ndarray], k:
             count += diff.size
             sq_by_frame = sq_by_frame + per_frame
             n_by_frame += diff.size // diff.shape[1]
+            sharp_rec += _sharpness_sum(rec)
+            sharp_truth += _sharpness_sum(chunk)
         psnr[surface] = float(_psnr(sq, count))
+        sharpness[surface] = round(sharp_rec / max(sharp_truth, 1e-12), 3)
     by_latent = [sq_by_frame[:1]] + [sq_by_frame[1 + k * j:1 + k * (j + 1)] for j in range((len(sq_by_frame) - 1) // k)]
-    return psnr, [float(_psnr(s.sum(), n_by_frame * len(s))) for s in by_latent], sample
+    return psnr, [float(_psnr(s.sum(), n_by_frame * len(s))) for s in by_latent], sample, sharpness
 
 
 # ---------------------------------------------------------------------------------------------
@@ -167,12 +180,13 @@ def score_model(reconstruct: Reconstruct, windows: dict[str, np.ndarray], k: int
                 ) -> dict:
     """Both parts for one reconstruction, with the verdicts against the targets."""
     t0 = time.perf_counter()
-    psnr, by_latent, sample = psnr_by_surface(reconstruct, windows, k)
+    psnr, by_latent, sample, sharpness = psnr_by_surface(reconstruct, windows, k)
     psnr_s = time.perf_counter() - t0
     judged = judge_reconstructions(reconstruct, segments, judge, original)
     return {
         "psnr_db_by_surface": psnr, "psnr_db_min_surface": min(psnr.values()), "psnr_seconds": round(psnr_s, 1),
         "psnr_db_by_latent": by_latent,
+        "sharpness_ratio_by_surface": sharpness, "sharpness_ratio_min_surface": min(sharpness.values()),
         "judges": judged,
         "meets": {"psnr": min(psnr.values()) >= TARGET_PSNR_DB,
                   "judges": judged["max_abs_difference_points"] <= TARGET_JUDGE_POINTS},
@@ -239,12 +253,12 @@ def table(result: dict) -> str:
     models = result["models"]
     surfaces = list(next(iter(models.values()))["psnr_db_by_surface"])
     tasks = list(next(iter(models.values()))["judges"]["difference_points"])
-    head = ["model", *[f"{s} dB" for s in surfaces], *[f"{t} Δ" for t in tasks], "meets"]
+    head = ["model", *[f"{s} dB" for s in surfaces], "sharpness (min surface)", *[f"{t} Δ" for t in tasks], "meets"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for name, row in models.items():
         meets = "yes" if all(row["meets"].values()) else "no (" + ", ".join(k for k, v in row["meets"].items() if not v) + ")"
         cells = [name, *[f"{row['psnr_db_by_surface'][s]:.2f}" for s in surfaces],
-                 *[f"{row['judges']['difference_points'][t]:+.1f}" for t in tasks], meets]
+                 f"{row['sharpness_ratio_min_surface']:.2f}", *[f"{row['judges']['difference_points'][t]:+.1f}" for t in tasks], meets]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 

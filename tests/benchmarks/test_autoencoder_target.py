@@ -65,6 +65,7 @@ def test_a_perfect_reconstruction_meets_both_targets_and_a_grey_one_neither(held
     perfect = AT.score_model(identity, windows, 4, segments, judge, original)
     assert perfect["psnr_db_min_surface"] > 100 and perfect["meets"] == {"psnr": True, "judges": True}
     assert len(perfect["psnr_db_by_latent"]) == 3 and min(perfect["psnr_db_by_latent"]) > 100  # frame 0, 2 chunks
+    assert set(perfect["sharpness_ratio_by_surface"].values()) == {1.0} and perfect["sharpness_ratio_min_surface"] == 1.0
     assert perfect["judges"]["max_abs_difference_points"] == 0
     assert all(q["same_answer"] == 1.0 for q in perfect["judges"]["answer_agreement"].values())
     assert perfect["judges"]["tasks_pct"]["original"] == perfect["judges"]["tasks_pct"]["reconstructed"]
@@ -74,6 +75,7 @@ def test_a_perfect_reconstruction_meets_both_targets_and_a_grey_one_neither(held
     grey = AT.score_model(flat_grey, windows, 4, segments, judge, original)
     assert grey["psnr_db_min_surface"] < 20 and not grey["meets"]["psnr"]
     assert len(grey["psnr_db_by_latent"]) == 3 and max(grey["psnr_db_by_latent"]) < 20
+    assert grey["sharpness_ratio_min_surface"] == 0.0  # a flat frame has no edges
     agreement = grey["judges"]["answer_agreement"]
     assert sum(q["queries"] for q in agreement.values()) == len(original)
     # the judges answer a flat frame differently from an engine view on some queries
@@ -106,6 +108,6 @@ def test_psnr_by_latent_finds_the_chunk_a_decoder_loses(heldout):
         rec[:, 5:9] = 0
         return rec
 
-    psnr, by_latent, _ = AT.psnr_by_surface(loses_chunk_two, windows, k=4)
+    psnr, by_latent, _, _ = AT.psnr_by_surface(loses_chunk_two, windows, k=4)
     assert by_latent[0] > 100 and by_latent[1] > 100 and by_latent[2] < 15
     assert all(v < 20 for v in psnr.values())
