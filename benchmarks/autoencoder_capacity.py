@@ -9,7 +9,8 @@ channels, temporal factor) trains from scratch with the VAE stage's objective (`
 wall-clock budget (or the same number of updates) on the same clips, then reconstructs held-out clips
 (``duet/test``, 1 + 2k frames: the first-frame latent and the chunk latents) through the posterior mean.
 Reported per candidate: PSNR over all held-out frames, per world surface (grass / snow / sand / red sand /
-normal; a flat world's surface is its instance mod 5, ``engine.worldgen.FLAT_VARIANTS``), the updates done,
+normal; a flat world's surface is its instance mod 5, ``engine.worldgen.FLAT_VARIANTS``), the sharpness ratio
+(mean |Laplacian| of the reconstructions over the truth's, overall and per surface), the updates done,
 latent numbers per frame, and the decoder's cost (GFLOP per env step and player, from XLA's cost analysis).
 The issue's target is >= 28 dB on every world (docs/evaluation.md). Short CPU runs rank the candidates;
 the GPU sprint (docs/training.md) trains the chosen one to convergence. Writes
@@ -91,6 +92,15 @@ def held_out_clips(data_dir: Path, num_frames: int, per_episode: int, seed: int 
     return {s: np.stack(c) for s, c in sorted(clips.items())}
 
 
+def sharpness_ratio(rec: np.ndarray, truth: np.ndarray) -> float:
+    """Mean |Laplacian| of the reconstructed frames over the truth's (``dream_fidelity``'s sharpness): the
+    ceiling of a dream's sharpness with this autoencoder."""
+    from benchmarks.dream_fidelity import sharpness_T
+
+    frames = lambda x: x.reshape((-1,) + x.shape[-3:])
+    return round(float(sharpness_T(frames(rec)).mean() / max(sharpness_T(frames(truth)).mean(), 1e-12)), 3)
+
+
 def decoder_gflop(cfg) -> float:
     """GFLOP of decoding one latent frame (k video frames) for one player, from XLA's cost analysis."""
     import jax
@@ -136,11 +146,12 @@ def train_candidate(name: str, data_dir: Path, test: dict[str, np.ndarray], minu
             break
     train_s = time.perf_counter() - t0
     reconstruct = V.make_reconstruct(graphdef)
-    per_surface, recon_all, truth_all = {}, [], []
+    per_surface, sharp_by_surface, recon_all, truth_all = {}, {}, [], []
     for surface, clips in test.items():
         rec = np.concatenate([np.asarray(reconstruct(state.params, state.rest, clips[i:i + 8]))
                               for i in range(0, len(clips), 8)])
         per_surface[surface] = round(V.psnr_uint8(rec, clips), 2)
+        sharp_by_surface[surface] = sharpness_ratio(rec, clips)
         recon_all.append(rec[:2])
         truth_all.append(clips[:2])
     all_rec = np.concatenate([np.asarray(reconstruct(state.params, state.rest, c[i:i + 8]))
@@ -154,6 +165,8 @@ def train_candidate(name: str, data_dir: Path, test: dict[str, np.ndarray], minu
             "updates": done, "train_s": round(train_s, 1), "train_psnr_last50_db": round(float(np.mean(losses[-50:])), 2),
             "test_psnr_db": round(V.psnr_uint8(all_rec, all_truth), 2),
             "test_psnr_min_surface_db": min(per_surface.values()), "test_psnr_by_surface_db": per_surface,
+            "test_sharpness_ratio": sharpness_ratio(all_rec, all_truth),
+            "test_sharpness_ratio_by_surface": sharp_by_surface,
             "decoder_gflop_per_latent_frame": round(decoder_gflop(cfg), 3),
             "_sample": (np.concatenate(truth_all), np.concatenate(recon_all))}
 
@@ -200,7 +213,7 @@ def main(argv: list[str] | None = None) -> dict:
         samples[name] = row.pop("_sample")
         result["candidates"][name] = row
         print(f"{name:>10s}: {row['test_psnr_db']:5.2f} dB held out (min surface {row['test_psnr_min_surface_db']:5.2f}) "
-              f"after {row['updates']} updates in {row['train_s']:.0f} s; latents {row['latent_shape']} per "
+              f"sharpness {row['test_sharpness_ratio']:.2f} after {row['updates']} updates in {row['train_s']:.0f} s; latents {row['latent_shape']} per "
               f"{row['frames_per_latent']} frames; decoder {row['decoder_gflop_per_latent_frame']} GFLOP; "
               f"{row['test_psnr_by_surface_db']}", flush=True)
     result["machine"] = machine_info(load)

@@ -27,6 +27,12 @@ def test_surface_of_an_episode_follows_the_instance():
     assert AC.surface_of({"world_type": "normal", "instance": 3}) == "normal"
 
 
+def test_sharpness_ratio_is_one_for_the_truth_and_zero_for_a_flat_frame():
+    truth = np.random.default_rng(0).integers(0, 256, (2, 5, 16, 16, 3), dtype=np.uint8)
+    assert AC.sharpness_ratio(truth, truth) == 1.0
+    assert AC.sharpness_ratio(np.full_like(truth, 90), truth) == 0.0
+
+
 def test_contact_sheet_stacks_truth_over_each_candidate():
     truth = np.zeros((2, 5, 8, 8, 3), np.uint8)
     rec = np.full((2, 5, 8, 8, 3), 200, np.uint8)
@@ -49,4 +55,6 @@ def test_a_short_run_scores_each_candidate_per_surface(tmp_path):
     for row in saved["candidates"].values():
         assert row["updates"] == 1 and 0 < row["test_psnr_db"] < 60
         assert row["test_psnr_min_surface_db"] == min(row["test_psnr_by_surface_db"].values())
+        assert 0 < row["test_sharpness_ratio"] and row["test_sharpness_ratio_by_surface"].keys() == \
+            row["test_psnr_by_surface_db"].keys()
     assert out.with_suffix(".png").is_file()
