@@ -213,7 +213,8 @@ def main(argv: list[str] | None = None) -> dict:
         samples[name] = row.pop("_sample")
         result["candidates"][name] = row
         print(f"{name:>10s}: {row['test_psnr_db']:5.2f} dB held out (min surface {row['test_psnr_min_surface_db']:5.2f}) "
-              f"sharpness {row['test_sharpness_ratio']:.2f} after {row['updates']} updates in {row['train_s']:.0f} s; latents {row['latent_shape']} per "
+              f"sharpness {row['test_sharpness_ratio']:.2f} after {row['updates']} updates in {row['train_s']:.0f} s; "
+              f"latents {row['latent_shape']} per "
               f"{row['frames_per_latent']} frames; decoder {row['decoder_gflop_per_latent_frame']} GFLOP; "
               f"{row['test_psnr_by_surface_db']}", flush=True)
     result["machine"] = machine_info(load)

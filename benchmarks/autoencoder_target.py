@@ -258,7 +258,8 @@ def table(result: dict) -> str:
     for name, row in models.items():
         meets = "yes" if all(row["meets"].values()) else "no (" + ", ".join(k for k, v in row["meets"].items() if not v) + ")"
         cells = [name, *[f"{row['psnr_db_by_surface'][s]:.2f}" for s in surfaces],
-                 f"{row['sharpness_ratio_min_surface']:.2f}", *[f"{row['judges']['difference_points'][t]:+.1f}" for t in tasks], meets]
+                 f"{row['sharpness_ratio_min_surface']:.2f}",
+                 *[f"{row['judges']['difference_points'][t]:+.1f}" for t in tasks], meets]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
