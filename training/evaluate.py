@@ -15,6 +15,11 @@ every latent exactly: the model's ceiling), and the teacher-forced rollout (each
 past latents: its gap to (a) is the drift, its gap to the ceiling the per-step error). PSNR is the mean over
 frames of each frame's PSNR (the criterion); next to it, the PSNR of the mean squared error over all frames;
 plus a contact sheet (generated over ground truth, both players, 64 steps) and ``eval.json``.
+
+PSNR rewards a blur, so (a) also reports per env step the sharpness ratio (mean |Laplacian| over the truth's,
+the fidelity benchmark's measure) and the pixel std of the free rollout, the teacher-forced one and the VAE's
+reconstruction, with the truth's std. A rollout that fades loses both along the steps while its teacher-forced
+twin keeps them (docs/history.md, session 25).
 """
 
 from __future__ import annotations
@@ -47,6 +52,28 @@ def _segments(dataset, num_frames: int, count: int, seed: int) -> dict[str, np.n
     except ValueError:  # no episode is long enough
         return None
     return next_batch(dataset, sampler, count, num_frames)
+
+
+def fade_by_step(truth_BTPHW3: np.ndarray, rollouts: dict[str, np.ndarray], steps: int, k: int) -> dict:
+    """Per env step (frames 1.., k per step): each rollout's sharpness ratio to the truth and pixel std, and the
+    truth's pixel std; plus each rollout's sharpness ratio over all steps."""
+    from benchmarks.dream_fidelity import sharpness_T
+
+    def per_frame(x):  # (B, T, P, H, W, 3) -> (sharpness, std), each (B, T - 1, P) without the given frame
+        b, t, p = x.shape[:3]
+        sharp = sharpness_T(x.reshape((-1,) + x.shape[3:])).reshape(b, t, p)[:, 1:]
+        return sharp, x.reshape((b, t, p, -1)).astype(np.float32).std(axis=-1)[:, 1:]
+
+    by_step = lambda v: v.mean(axis=(0, 2)).reshape(steps, k).mean(axis=1)
+    sharp_truth, std_truth = per_frame(truth_BTPHW3)
+    out = {"pixel_std_truth_by_step": [round(float(v), 2) for v in by_step(std_truth)]}
+    for name, x in rollouts.items():
+        sharp, std = per_frame(x)
+        ratio = by_step(sharp) / np.maximum(by_step(sharp_truth), 1e-12)
+        out[f"sharpness_ratio_{name}"] = round(float(sharp.mean() / max(sharp_truth.mean(), 1e-12)), 3)
+        out[f"sharpness_ratio_{name}_by_step"] = [round(float(v), 3) for v in ratio]
+        out[f"pixel_std_{name}_by_step"] = [round(float(v), 2) for v in by_step(std)]
+    return out
 
 
 def evaluate(model_dir: str | Path, data_dir: str | Path, out_dir: str | Path, num_segments: int = 8,
@@ -95,6 +122,8 @@ def evaluate(model_dir: str | Path, data_dir: str | Path, out_dir: str | Path, n
         "psnr_teacher_forced_by_step_db": by_step(gen_teacher),
         "psnr_of_mean_mse_model_db": mse_db(gen), "psnr_of_mean_mse_copy_last_frame_db": mse_db(copy),
     }
+    fade = fade_by_step(obs, {"model": gen, "teacher_forced": gen_teacher, "vae_reconstruction": ceiling}, steps, k)
+    result["rollout"].update(fade)
     r = result["rollout"]
     r["beats_copy_last_frame"] = r["psnr_model_db"] > r["psnr_copy_last_frame_db"]
     r["follows_actions_per_player"] = [a > z for a, z in zip(r["psnr_model_per_player_db"],

@@ -224,6 +224,10 @@ def test_evaluate_scores_rollouts_against_copy_last_and_the_vae_ceiling(run, dat
     # the VAE's reconstruction is a real decode of the clip: a finite PSNR in the range of a trained codec
     assert 10.0 < r["psnr_vae_reconstruction_db"] < 60.0
     assert r["beats_copy_last_frame"] == (r["psnr_model_db"] > r["psnr_copy_last_frame_db"])
+    for name in ("model", "teacher_forced", "vae_reconstruction"):  # the fade: sharpness and contrast per step
+        assert len(r[f"sharpness_ratio_{name}_by_step"]) == len(r[f"pixel_std_{name}_by_step"]) == 2, name
+        assert 0.0 <= r[f"sharpness_ratio_{name}"] and min(r[f"pixel_std_{name}_by_step"]) >= 0.0
+    assert len(r["pixel_std_truth_by_step"]) == 2 and min(r["pixel_std_truth_by_step"]) > 0.0
     assert len(result["long_rollout"]["psnr_db"]) == 1
     assert json.loads((tmp_path / "eval.json").read_text())["rollout"] == r
     assert (tmp_path / "contact_sheet.png").is_file() and (tmp_path / "rollout_0.mp4").is_file()
