@@ -28,6 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks.dream_fidelity import sharpness_ratio
+
 RESULTS = Path(__file__).parent / "results" / "autoencoder_capacity.json"
 SURFACES = ("grass", "grass", "snow", "sand", "red_sand")  # FLAT_VARIANTS' surfaces by instance mod 5
 # name -> VAEConfig fields over the tiny preset's VAE (spatial factor = 2 ** (len(dim_mult) - 1))
@@ -90,15 +92,6 @@ def held_out_clips(data_dir: Path, num_frames: int, per_episode: int, seed: int 
     if not clips:
         raise ValueError(f"{test}: no test episodes with >= {num_frames} frames (collect with --test-fraction > 0)")
     return {s: np.stack(c) for s, c in sorted(clips.items())}
-
-
-def sharpness_ratio(rec: np.ndarray, truth: np.ndarray) -> float:
-    """Mean |Laplacian| of the reconstructed frames over the truth's (``dream_fidelity``'s sharpness): the
-    ceiling of a dream's sharpness with this autoencoder."""
-    from benchmarks.dream_fidelity import sharpness_T
-
-    frames = lambda x: x.reshape((-1,) + x.shape[-3:])
-    return round(float(sharpness_T(frames(rec)).mean() / max(sharpness_T(frames(truth)).mean(), 1e-12)), 3)
 
 
 def decoder_gflop(cfg) -> float:

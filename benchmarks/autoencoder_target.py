@@ -80,13 +80,6 @@ def _psnr(sq: float | np.ndarray, count: int | np.ndarray):
     return np.round(10.0 * np.log10(255.0 ** 2 / np.maximum(np.asarray(sq) / count, 1e-12)), 2)
 
 
-def _sharpness_sum(frames_BTPHW3: np.ndarray) -> float:
-    """The sum over frames of the mean |Laplacian| (the fidelity benchmark's sharpness)."""
-    from benchmarks.dream_fidelity import sharpness_T
-
-    return float(sharpness_T(frames_BTPHW3.reshape((-1,) + frames_BTPHW3.shape[-3:])).sum())
-
-
 def psnr_by_surface(reconstruct: Reconstruct, windows: dict[str, np.ndarray], k: int, batch: int = 4
                     ) -> tuple[dict[str, float], list[float], dict[str, np.ndarray], dict[str, float]]:
     """PSNR (dB, the MSE pooled over the pixels) per surface; per latent of the window (the first frame,
@@ -94,6 +87,8 @@ def psnr_by_surface(reconstruct: Reconstruct, windows: dict[str, np.ndarray], k:
     per surface the reconstruction of the first window's middle frame (both players) for the contact
     sheet; and per surface the sharpness ratio, mean |Laplacian| of the reconstructions over the truth's
     (``dream_fidelity``'s sharpness: no dream can be sharper than its decoder makes the truth)."""
+    from benchmarks.dream_fidelity import sharpness_T
+
     psnr, sample, sharpness = {}, {}, {}
     sq_by_frame, n_by_frame = 0.0, 0
     for surface, w in windows.items():
@@ -109,8 +104,8 @@ def psnr_by_surface(reconstruct: Reconstruct, windows: dict[str, np.ndarray], k:
             count += diff.size
             sq_by_frame = sq_by_frame + per_frame
             n_by_frame += diff.size // diff.shape[1]
-            sharp_rec += _sharpness_sum(rec)
-            sharp_truth += _sharpness_sum(chunk)
+            sharp_rec += float(sharpness_T(rec).sum())
+            sharp_truth += float(sharpness_T(chunk).sum())
         psnr[surface] = float(_psnr(sq, count))
         sharpness[surface] = round(sharp_rec / max(sharp_truth, 1e-12), 3)
     by_latent = [sq_by_frame[:1]] + [sq_by_frame[1 + k * j:1 + k * (j + 1)] for j in range((len(sq_by_frame) - 1) // k)]

@@ -102,10 +102,17 @@ def view_change_T(frames_THW3: np.ndarray) -> np.ndarray:
 
 
 def sharpness_T(frames_THW3: np.ndarray) -> np.ndarray:
-    """(T,) mean |4-neighbour Laplacian| of each grey frame over its interior pixels."""
-    g = grey_THW(frames_THW3)
+    """(T,) mean |4-neighbour Laplacian| of each grey frame over its interior pixels; any leading axes
+    (..., H, W, 3) -> (...)."""
+    frames = np.asarray(frames_THW3)
+    g = grey_THW(frames.reshape((-1,) + frames.shape[-3:]))
     lap = 4 * g[:, 1:-1, 1:-1] - g[:, :-2, 1:-1] - g[:, 2:, 1:-1] - g[:, 1:-1, :-2] - g[:, 1:-1, 2:]
-    return np.abs(lap).mean(axis=(1, 2))
+    return np.abs(lap).mean(axis=(1, 2)).reshape(frames.shape[:-3])
+
+
+def sharpness_ratio(frames: np.ndarray, reference: np.ndarray) -> float:
+    """Mean sharpness of ``frames`` over ``reference``'s (any leading axes, frames last as (H, W, 3))."""
+    return round(float(sharpness_T(frames).mean() / max(sharpness_T(reference).mean(), 1e-12)), 3)
 
 
 def psnr_T(a_THW3: np.ndarray, b_THW3: np.ndarray) -> np.ndarray:

@@ -60,9 +60,7 @@ def fade_by_step(truth_BTPHW3: np.ndarray, rollouts: dict[str, np.ndarray], step
     from benchmarks.dream_fidelity import sharpness_T
 
     def per_frame(x):  # (B, T, P, H, W, 3) -> (sharpness, std), each (B, T - 1, P) without the given frame
-        b, t, p = x.shape[:3]
-        sharp = sharpness_T(x.reshape((-1,) + x.shape[3:])).reshape(b, t, p)[:, 1:]
-        return sharp, x.reshape((b, t, p, -1)).astype(np.float32).std(axis=-1)[:, 1:]
+        return sharpness_T(x)[:, 1:], x.reshape(x.shape[:3] + (-1,)).astype(np.float32).std(axis=-1)[:, 1:]
 
     by_step = lambda v: v.mean(axis=(0, 2)).reshape(steps, k).mean(axis=1)
     sharp_truth, std_truth = per_frame(truth_BTPHW3)
