@@ -19,7 +19,11 @@ plus a contact sheet (generated over ground truth, both players, 64 steps) and `
 PSNR rewards a blur, so (a) also reports per env step the sharpness ratio (mean |Laplacian| over the truth's,
 the fidelity benchmark's measure) and the pixel std of the free rollout, the teacher-forced one and the VAE's
 reconstruction, with the truth's std. A rollout that fades loses both along the steps while its teacher-forced
-twin keeps them (docs/history.md, session 25).
+twin keeps them (docs/history.md, session 25). And whether each rollout moves the way the truth does: the
+fidelity benchmark's direction agreement on env-step frames, for the free rollout, the teacher-forced one (its
+one-step predictions, scored from the frame they were conditioned on) and both with zeroed actions. A model
+whose teacher-forced predictions follow the actions but whose free rollout does not is drifting; one whose
+teacher-forced predictions do not is not conditioned on the actions.
 """
 
 from __future__ import annotations
@@ -74,6 +78,41 @@ def fade_by_step(truth_BTPHW3: np.ndarray, rollouts: dict[str, np.ndarray], step
     return out
 
 
+def direction_by_rollout(truth_BTPHW3: np.ndarray, rollouts: dict[str, tuple[np.ndarray, np.ndarray]],
+                         k: int) -> dict:
+    """Does each rollout move the way the truth does? The fidelity benchmark's direction estimator
+    (``benchmarks.dream_fidelity.direction_scores``) on env-step frames (every k-th frame): the camera motion is
+    fitted to each true step, and a rollout's step ``before[t-1] -> after[t]`` is scored under it.
+
+    ``rollouts`` maps a name to ``(before, after)``, both (B, T, P, H, W, 3) uint8: a free rollout is scored
+    against itself (``(x, x)``); a teacher-forced one from the frames its step was conditioned on (the VAE's
+    reconstruction of the truth), so its score is that of a one-step prediction. Returns per name the direction
+    agreement (1 = as the truth, 0 = frozen or unrelated, < 0 = reversed) and the count of scored steps."""
+    from benchmarks.dream_fidelity import (
+        direction_agreement,
+        direction_score,
+        direction_scores,
+        prepare_THW,
+    )
+
+    engine, valid, scores = [], [], {name: [] for name in rollouts}
+    b, _, p = truth_BTPHW3.shape[:3]
+    for i in range(b):
+        for j in range(p):
+            ref = direction_scores(truth_BTPHW3[i, ::k, j])
+            engine.append(ref["engine"])
+            valid.append(ref["valid"])
+            for name, (before, after) in rollouts.items():
+                x, y = prepare_THW(before[i, ::k, j]), prepare_THW(after[i, ::k, j])
+                scores[name].append([direction_score(x[t - 1], y[t], ref["motion"][t - 1]) for t in range(1, len(y))])
+    engine, valid = np.concatenate(engine), np.concatenate(valid)
+    out = {"direction_valid_steps": int(valid.sum())}
+    for name, s in scores.items():
+        agreement = direction_agreement(engine, np.concatenate(s), valid)
+        out[f"direction_agreement_{name}"] = None if agreement is None else round(float(agreement), 3)
+    return out
+
+
 def evaluate(model_dir: str | Path, data_dir: str | Path, out_dir: str | Path, num_segments: int = 8,
              steps: int = 32, long_steps: int = 200, sheet_steps: int = 64, seed: int = 0,
              action_guidance: float | None = None) -> dict:
@@ -122,6 +161,11 @@ def evaluate(model_dir: str | Path, data_dir: str | Path, out_dir: str | Path, n
     }
     fade = fade_by_step(obs, {"model": gen, "teacher_forced": gen_teacher, "vae_reconstruction": ceiling}, steps, k)
     result["rollout"].update(fade)
+    gen_teacher_zero = rollout(model, obs, np.zeros_like(act), seed, teacher_forced=True)
+    result["rollout"].update(direction_by_rollout(obs, {
+        "model": (gen, gen), "zero_actions": (gen_zero, gen_zero),
+        "teacher_forced": (ceiling, gen_teacher), "teacher_forced_zero_actions": (ceiling, gen_teacher_zero),
+        "vae_reconstruction": (ceiling, ceiling)}, k))
     r = result["rollout"]
     r["beats_copy_last_frame"] = r["psnr_model_db"] > r["psnr_copy_last_frame_db"]
     r["follows_actions_per_player"] = [a > z for a, z in zip(r["psnr_model_per_player_db"],
