@@ -1,0 +1,186 @@
+"""Does the camera warp move a model's latents the way the engine's turns move them?
+
+    .venv/bin/solaris-engine collect --out data/heldout64 --episodes 24 --world mixed --resolution 64 \\
+        --seed 99 --instances 10 --test-fraction 1 --workers 2
+    .venv/bin/python -m benchmarks.camera_warp_fit --data data/heldout64 --model default   # ~1 min
+
+The camera warp (``DiTConfig.camera_warp``, docs/model.md §8.1) gives the DiT each frame's previous latent,
+its content moved by the frame's camera turn at a fixed number of latent pixels per degree. That helps only
+if the model's latents of a turning view really are the previous latents moved by that much. This benchmark
+measures it on held-out engine clips (``duet/test``): the true latents (the VAE's normalised posterior means,
+as the DiT is trained on them) and each latent frame's turn (``camera.frame_turns`` of the recorded mouse).
+
+On the frames that turn about one axis only (yaw frames: |yaw| >= ``--min-deg`` and |pitch| < 2 deg; pitch
+frames the other way round), binned by the size of the turn, it reports the mean squared difference of the
+next latent and the previous one moved by ``s * turn`` for a scan of ``s`` (latent pixels per degree): at
+``s = 0`` (no warp), at the model's configured ``s``, and at the best ``s`` of the scan. The border ring of
+latents is left out (new content enters there). Next to it, the same scan on the frames themselves (the
+last frame of each latent chunk, grey, a border of one latent pixel's width left out, which also drops the
+hotbar; pixels per degree divided by the VAE's spatial compression): the camera geometry the warp assumes,
+and a check that the mouse is read at the right ticks.
+
+A warp whose configured ``s`` scores above ``s = 0`` feeds the DiT a previous frame further from the truth than
+no warp at all. Writes ``benchmarks/results/camera_warp_fit.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+RESULTS = Path(__file__).parent / "results" / "camera_warp_fit.json"
+BINS_DEG = ((2.0, 8.0), (8.0, 20.0), (20.0, 90.0))  # |turn| per latent frame
+OTHER_AXIS_MAX_DEG = 2.0
+LATENT_SCAN = tuple(np.round(np.arange(-0.06, 0.1201, 0.01), 3))  # latent pixels per degree
+
+
+def shift_frames(x_NhwC: np.ndarray, shift_N2: np.ndarray) -> np.ndarray:
+    """Move each frame's content by (down, right) pixels (``camera.shift_latents``: linear interpolation,
+    edges repeated)."""
+    import jax.numpy as jnp
+
+    from solaris_env.world_model import camera
+
+    return np.asarray(camera.shift_latents(jnp.asarray(x_NhwC, jnp.float32), jnp.asarray(shift_N2, jnp.float32)))
+
+
+def scan_errors(prev_NhwC: np.ndarray, next_NhwC: np.ndarray, turns_N: np.ndarray, axis: int,
+                scales: Sequence[float], border: int = 1) -> np.ndarray:
+    """(len(scales),) mean squared difference of ``next`` and ``prev`` moved by ``scale * turn`` along ``axis``
+    (0 = down, for pitch; 1 = right, for yaw), a ring of ``border`` pixels excluded."""
+    out = []
+    for s in scales:
+        shift = np.zeros((len(turns_N), 2), np.float32)
+        shift[:, axis] = s * turns_N
+        d = shift_frames(prev_NhwC, shift) - next_NhwC
+        out.append(float(np.mean(d[:, border:-border, border:-border] ** 2)))
+    return np.asarray(out)
+
+
+def select(turns_N2: np.ndarray, axis: str, lo: float, hi: float) -> np.ndarray:
+    """(N,) bool: frames turning ``lo <= |turn| < hi`` degrees about ``axis`` ('yaw' or 'pitch') only."""
+    i = 0 if axis == "yaw" else 1
+    this, other = np.abs(turns_N2[:, i]), np.abs(turns_N2[:, 1 - i])
+    return (this >= lo) & (this < hi) & (other < OTHER_AXIS_MAX_DEG)
+
+
+def fit(prev_NhwC: np.ndarray, next_NhwC: np.ndarray, turns_N2: np.ndarray, configured: tuple[float, float],
+        scales: Sequence[float], bins: Sequence[tuple[float, float]] = BINS_DEG, border: int = 1) -> dict:
+    """Per axis and bin of turn size: frames, and the mean error at no warp, the configured warp and the best
+    scale of the scan. ``turns_N2`` is [yaw (+ left), pitch (+ up)] degrees; a left turn moves content right
+    and looking up moves it down (``camera.content_shift``), so both scales are positive when right.
+    ``configured`` is (pitch, yaw) pixels per degree, as ``DiTConfig.camera_warp``."""
+    scales = list(scales)
+    out = {}
+    for axis, shift_axis, conf in (("yaw", 1, configured[1]), ("pitch", 0, configured[0])):
+        rows = []
+        for lo, hi in bins:
+            sel = select(turns_N2, axis, lo, hi)
+            row = {"turn_deg": [lo, hi], "frames": int(sel.sum())}
+            if sel.any():
+                turn = turns_N2[sel, 0 if axis == "yaw" else 1]
+                errs = scan_errors(prev_NhwC[sel], next_NhwC[sel], turn, shift_axis, scales + [0.0, conf], border)
+                best = int(np.argmin(errs[:len(scales)]))
+                row.update({"mse_no_warp": round(float(errs[-2]), 4), "mse_configured": round(float(errs[-1]), 4),
+                            "best_per_degree": float(scales[best]), "mse_best": round(float(errs[best]), 4),
+                            "configured_helps": bool(errs[-1] < errs[-2])})
+            rows.append(row)
+        out[axis] = {"configured_per_degree": conf, "bins": rows}
+    return out
+
+
+def clips(data_dir: str | Path, model, segments: int, steps: int, seed: int = 0) -> dict[str, np.ndarray]:
+    """Held-out clips through the model's VAE: per latent frame f >= 1 of every clip and player, the previous
+    and next latent (N, h, w, C), the last frame of each latent chunk in grey (N, H, W) before and after, and
+    the turn (N, 2)."""
+    import jax.numpy as jnp
+
+    from solaris_env.world_model import camera
+    from training.duet import DuetDataset
+    from training.evaluate import _segments
+    from training.step import prepare_batch
+
+    cfg = model.config
+    k = model.frames_per_step
+    dataset = DuetDataset(data_dir, "test", obs_size=(cfg.frame_height, cfg.frame_width))
+    seg = _segments(dataset, 1 + k * steps, segments, seed)
+    if seg is None:
+        raise SystemExit(f"--data: no held-out episode in {data_dir}/duet/test holds {1 + k * steps} frames")
+    _, vae, image_encoder = model.modules()[:3]
+    batch = prepare_batch(vae, image_encoder, jnp.asarray(seg["obs"]), jnp.asarray(seg["act"]), cfg)
+    x0 = np.asarray(batch["x0"], np.float32)  # (B, P, F, h, w, C)
+    f = x0.shape[2]
+    w = cfg.action_window
+    windows = np.stack([np.asarray(batch["mouse"])[:, :, k * i:k * i + w] for i in range(f)], axis=2)
+    turns = np.asarray(camera.frame_turns(jnp.asarray(windows), k))  # (B, P, F, 2)
+    grey = seg["obs"][:, ::k].astype(np.float32).mean(axis=-1).swapaxes(1, 2)  # (B, P, F, H, W)
+    flat = lambda a: a[:, :, 1:].reshape((-1,) + a.shape[3:])
+    before = lambda a: a[:, :, :-1].reshape((-1,) + a.shape[3:])
+    return {"prev": before(x0), "next": flat(x0), "grey_prev": before(grey), "grey_next": flat(grey),
+            "turns": flat(turns), "compression": cfg.frame_height // x0.shape[3]}
+
+
+def run(model, data_dir: str | Path, segments: int, steps: int) -> dict:
+    c = clips(data_dir, model, segments, steps)
+    configured = tuple(model.config.dit.camera_warp)
+    latent = fit(c["prev"], c["next"], c["turns"], configured, LATENT_SCAN)
+    pixel_scales = [s * c["compression"] for s in LATENT_SCAN]  # the same scan in frame pixels per degree
+    pixel = fit(c["grey_prev"][..., None], c["grey_next"][..., None], c["turns"],
+                tuple(v * c["compression"] for v in configured), pixel_scales, border=c["compression"])
+    for axis in pixel.values():  # report in latent pixels per degree, as the warp is configured
+        axis["configured_per_degree"] = round(axis["configured_per_degree"] / c["compression"], 4)
+        for row in axis["bins"]:
+            if "best_per_degree" in row:
+                row["best_per_degree"] = round(row["best_per_degree"] / c["compression"], 4)
+    return {"latent_frames": len(c["turns"]), "spatial_compression": int(c["compression"]),
+            "camera_warp": list(configured), "latents": latent, "frames": pixel}
+
+
+def table(result: dict) -> str:
+    lines = ["axis   space    turn deg  frames  mse no warp  mse configured  best s   mse best  configured helps"]
+    for name, space in (("latents", "latent"), ("frames", "frame")):
+        for axis, a in result[name].items():
+            for row in a["bins"]:
+                if row["frames"] == 0:
+                    continue
+                lo, hi = row["turn_deg"]
+                lines.append(f"{axis:6s} {space:7s} {lo:4.0f}-{hi:<4.0f} {row['frames']:7d} {row['mse_no_warp']:12.4f} "
+                             f"{row['mse_configured']:15.4f} {row['best_per_degree']:7.3f} {row['mse_best']:10.4f}  "
+                             f"{row['configured_helps']}")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> dict:
+    p = argparse.ArgumentParser(prog="python -m benchmarks.camera_warp_fit", description=__doc__.split("\n\n")[0])
+    p.add_argument("--model", default="default", help="default, a model directory or preset:NAME")
+    p.add_argument("--data", required=True, help="a collect with held-out episodes (duet/test)")
+    p.add_argument("--segments", type=int, default=16, help="held-out clips (both players each)")
+    p.add_argument("--steps", type=int, default=32, help="env steps (latent frames after the first) per clip")
+    p.add_argument("--out", default=str(RESULTS))
+    args = p.parse_args(argv)
+    from benchmarks.dream_fidelity import load_model, model_label
+    from benchmarks.machine import machine_info, write_result
+    from solaris_env.paths import portable_path
+
+    load = os.getloadavg()
+    t0 = time.perf_counter()
+    model = load_model(args.model)
+    if not model.config.dit.camera_warp_enabled:
+        print("the model has no camera warp: its configured scale reads as 0 (the best scale is still fitted)")
+    result = {"benchmark": "camera_warp_fit", "model": model_label(args.model), "data": portable_path(args.data),
+              "segments": args.segments, "steps": args.steps, **run(model, args.data, args.segments, args.steps)}
+    result["table"] = table(result)
+    result["seconds"] = round(time.perf_counter() - t0, 1)
+    result["machine"] = machine_info(load)
+    print(result["table"])
+    write_result(args.out, result)
+    return result
+
+
+if __name__ == "__main__":
+    main()
