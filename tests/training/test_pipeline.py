@@ -228,6 +228,11 @@ def test_evaluate_scores_rollouts_against_copy_last_and_the_vae_ceiling(run, dat
         assert len(r[f"sharpness_ratio_{name}_by_step"]) == len(r[f"pixel_std_{name}_by_step"]) == 2, name
         assert 0.0 <= r[f"sharpness_ratio_{name}"] and min(r[f"pixel_std_{name}_by_step"]) >= 0.0
     assert len(r["pixel_std_truth_by_step"]) == 2 and min(r["pixel_std_truth_by_step"]) > 0.0
+    # direction agreement of every rollout, on the steps where the truth's motion shows (None when none does)
+    assert 0 <= r["direction_valid_steps"] <= 2 * 2 * 2  # segments x players x steps
+    for name in ("model", "zero_actions", "teacher_forced", "teacher_forced_zero_actions", "vae_reconstruction"):
+        v = r[f"direction_agreement_{name}"]
+        assert (v is None) == (r["direction_valid_steps"] == 0), name
     assert len(result["long_rollout"]["psnr_db"]) == 1
     assert json.loads((tmp_path / "eval.json").read_text())["rollout"] == r
     assert (tmp_path / "contact_sheet.png").is_file() and (tmp_path / "rollout_0.mp4").is_file()
