@@ -10,8 +10,8 @@ if the model's latents of a turning view really are the previous latents moved b
 measures it on held-out engine clips (``duet/test``): the true latents (the VAE's normalised posterior means,
 as the DiT is trained on them) and each latent frame's turn (``camera.frame_turns`` of the recorded mouse).
 
-On the frames that turn about one axis only (yaw frames: |yaw| >= ``--min-deg`` and |pitch| < 2 deg; pitch
-frames the other way round), binned by the size of the turn, it reports the mean squared difference of the
+On the frames that turn about one axis only (yaw frames: |pitch| < 2 deg; pitch frames the other way round),
+binned by the size of the turn (2-8, 8-20, 20-90 deg per latent frame), it reports the mean squared difference of the
 next latent and the previous one moved by ``s * turn`` for a scan of ``s`` (latent pixels per degree): at
 ``s = 0`` (no warp), at the model's configured ``s``, and at the best ``s`` of the scan. The border ring of
 latents is left out (new content enters there). Next to it, the same scan on the frames themselves (the
@@ -101,6 +101,7 @@ def clips(data_dir: str | Path, model, segments: int, steps: int, seed: int = 0)
     import jax.numpy as jnp
 
     from solaris_env.world_model import camera
+    from solaris_env.world_model.action_module import action_windows
     from training.duet import DuetDataset
     from training.evaluate import _segments
     from training.step import prepare_batch
@@ -114,10 +115,7 @@ def clips(data_dir: str | Path, model, segments: int, steps: int, seed: int = 0)
     _, vae, image_encoder = model.modules()[:3]
     batch = prepare_batch(vae, image_encoder, jnp.asarray(seg["obs"]), jnp.asarray(seg["act"]), cfg)
     x0 = np.asarray(batch["x0"], np.float32)  # (B, P, F, h, w, C)
-    f = x0.shape[2]
-    w = cfg.action_window
-    windows = np.stack([np.asarray(batch["mouse"])[:, :, k * i:k * i + w] for i in range(f)], axis=2)
-    turns = np.asarray(camera.frame_turns(jnp.asarray(windows), k))  # (B, P, F, 2)
+    turns = np.asarray(camera.frame_turns(action_windows(batch["mouse"], cfg, x0.shape[2]), k))  # (B, P, F, 2)
     grey = seg["obs"][:, ::k].astype(np.float32).mean(axis=-1).swapaxes(1, 2)  # (B, P, F, H, W)
     flat = lambda a: a[:, :, 1:].reshape((-1,) + a.shape[3:])
     before = lambda a: a[:, :, :-1].reshape((-1,) + a.shape[3:])
