@@ -11,8 +11,8 @@ Each stage reads the previous stage's ``OUT/<stage>/model`` and resumes from its
 (``--no-resume`` starts over). Per-stage settings live in ``training/configs/<preset>.json``, validated (with
 the defaults of the optional keys) by ``training.stage_config``; ``--steps`` overrides the stage's step count.
 ``all`` keeps within the config's wall-clock budget (``all.time_budget_min``; ``--time-budget-min``) by ending
-stage 3 early when it must (``training.budget``). ``install``, ``with-decoder`` and ``action-conditioning``
-rewrite a trained model (``training.surgery``). Heavy imports (jax) happen only inside the commands.
+stage 3 early when it must (``training.budget``). ``install``, ``with-decoder``, ``action-conditioning`` and
+``official-dit`` rewrite a trained model (``training.surgery``). Heavy imports (jax) happen only inside the commands.
 """
 
 from __future__ import annotations
@@ -112,6 +112,12 @@ def cmd_action_conditioning(args) -> int:
     return 0
 
 
+def cmd_official_dit(args) -> int:
+    from training.surgery import official_dit
+    print(f"wrote {official_dit(args.model, args.out, args.seed)}")
+    return 0
+
+
 def cmd_sprint(args) -> int:
     from training.sprint import SprintArgs, process_start_time, run_sprint
 
@@ -187,6 +193,13 @@ def build_parser() -> argparse.ArgumentParser:
                         "embedding's new rows start at zero")
     g.add_argument("--out", required=True, help="the new model directory")
     g.set_defaults(func=cmd_action_conditioning)
+    o = sub.add_parser("official-dit", help="a model's VAE and image encoder under a fresh DiT in the official "
+                                            "layout (none of our DiT options): the start of a control run")
+    o.add_argument("model", help="a model/ directory, or 'default' (the shipped model)")
+    o.add_argument("--out", required=True,
+                   help="the new model directory; RUN/vae-decoder/model lets `solaris-train sp --out RUN` start from it")
+    o.add_argument("--seed", type=int, default=0, help="the DiT's initialisation seed")
+    o.set_defaults(func=cmd_official_dit)
     i = sub.add_parser("install", help="copy a trained model to the package's default-model directory")
     i.add_argument("model", help="a model/ directory written by a stage or a sprint (OUT/model: shards and "
                                  "lineage.json)")
@@ -207,7 +220,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _run(args) -> int:
-    if args.command not in ("install", "with-decoder", "action-conditioning"):
+    if args.command not in ("install", "with-decoder", "action-conditioning", "official-dit"):
         from training.distributed import maybe_initialize_distributed
         maybe_initialize_distributed()  # multi-host when JAX_COORDINATOR_ADDRESS / JAX_NUM_PROCESSES are set
     return args.func(args)

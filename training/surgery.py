@@ -7,6 +7,8 @@ rebuilt module; none draws data or takes an optimiser step.
   (``solaris-train with-decoder``);
 * ``with_action_conditioning``: a model under another action conditioning computing the same function
   (``solaris-train action-conditioning``);
+* ``official_dit``: a model's autoencoder and image encoder under a freshly initialised DiT in the official
+  layout, with none of our DiT options (``solaris-train official-dit``: the start of issue 23's control row);
 * ``install_default``: a model copied, as float16 single-file weights, to the package's default-model
   directory (``solaris-train install``).
 """
@@ -106,6 +108,22 @@ def with_action_conditioning(model: str | Path, dest: str | Path, mouse_input_ga
     kernel = dit_state["blocks"]["action_model"]["mouse_mlp"]["layers"][0]["kernel"]
     kernel.set_value(rescaled_mouse_kernel(kernel.get_value(), old, action.mouse_input_gain))
     checkpoint.save(dest, cfg, dict(zip(COMPONENTS, (dit_state, vae_state, encoder_state))))
+    return Path(dest)
+
+
+def official_dit(model: str | Path, dest: str | Path, seed: int = 0) -> Path:
+    """Write ``model``'s VAE and image encoder, unchanged, with a freshly initialised DiT (``seed``) in the
+    official layout to ``dest``: our DiT options at their official values (``DiTConfig.camera_warp`` off,
+    ``ActionConfig.mouse_input_gain`` 1), every size as ``model``'s. Trained through the DiT stages with the
+    same steps and data as ``model``'s DiT, it is the control that measures those options (docs/training.md,
+    "The control row")."""
+    base = WorldModel.load(DEFAULT_MODEL_DIR if str(model) == "default" else model)
+    old = base.config
+    cfg = old.replace(dit=dataclasses.replace(old.dit, camera_warp=(0.0, 0.0)),
+                      action=dataclasses.replace(old.action, mouse_input_gain=1.0))
+    fresh_dit, _, _ = WorldModel.from_config(cfg, seed=seed).params
+    _, vae_state, encoder_state = base.params
+    checkpoint.save(dest, cfg, dict(zip(COMPONENTS, (fresh_dit, vae_state, encoder_state))))
     return Path(dest)
 
 

@@ -1,0 +1,37 @@
+"""``training.surgery.official_dit`` (``solaris-train official-dit``): the start of issue 23's control row."""
+
+import dataclasses
+
+import jax
+import numpy as np
+
+from solaris_env.world_model.config import preset
+from solaris_env.world_model.world_model import WorldModel
+from training import cli
+
+
+def _leaves(state):
+    return [np.asarray(x) for x in jax.tree.leaves(state)]
+
+
+def test_official_dit_keeps_the_autoencoder_and_starts_a_fresh_official_dit(tmp_path):
+    base = preset("test")
+    ours = base.replace(dit=dataclasses.replace(base.dit, camera_warp=(0.1, 0.06)),
+                        action=dataclasses.replace(base.action, mouse_input_gain=10.0))
+    WorldModel.from_config(ours, seed=3).save(tmp_path / "ours")
+
+    assert cli.main(["official-dit", str(tmp_path / "ours"), "--out", str(tmp_path / "control"), "--seed", "5"]) == 0
+    src, control = WorldModel.load(tmp_path / "ours"), WorldModel.load(tmp_path / "control")
+    cfg = control.config
+    assert cfg.dit.camera_warp == (0.0, 0.0) and not cfg.dit.camera_warp_enabled
+    assert cfg.action.mouse_input_gain == 1.0
+    # every other field is the source's: only our two options changed
+    assert cfg.replace(dit=ours.dit, action=ours.action) == src.config
+    # the autoencoder and the image encoder are the source's, bit for bit
+    for mine, theirs in zip(control.params[1:], src.params[1:]):
+        assert all(np.array_equal(a, b) for a, b in zip(_leaves(mine), _leaves(theirs)))
+    # the DiT is a fresh one of the official layout: the random initialisation of that config and seed
+    fresh = WorldModel.from_config(cfg, seed=5).params[0]
+    assert all(np.array_equal(a, b) for a, b in zip(_leaves(control.params[0]), _leaves(fresh)))
+    in_channels = control.params[0]["patch_embedding"]["kernel"].get_value().shape[-2]
+    assert in_channels == cfg.in_channels < ours.patch_in_channels  # no warped-latent rows
