@@ -451,15 +451,9 @@ class SprintArgs:
 
 
 def resolve_init(init: str | None) -> Path | None:
-    from training.surgery import DEFAULT_MODEL_DIR
+    from training.surgery import model_directory
 
-    if init is None:
-        return None
-    path = DEFAULT_MODEL_DIR if init == "default" else Path(init)
-    if not (path / "config.json").is_file():
-        raise FileNotFoundError(f"--init {init}: {path} holds no model (config.json); expected 'default' or a "
-                                f"model directory")
-    return path
+    return None if init is None else model_directory(init, "--init")
 
 
 def _link(model: Path, target: Path) -> None:

@@ -36,6 +36,16 @@ from training.vae import DECODER_MODULES
 DEFAULT_MODEL_DIR = Path(__file__).resolve().parent.parent / "solaris_env" / "assets" / "default"
 
 
+def model_directory(spec: str | Path, what: str = "model") -> Path:
+    """The directory of a model named ``spec``: 'default' (the shipped model) or a directory holding its
+    ``config.json``; ``what`` names the argument in the error."""
+    path = DEFAULT_MODEL_DIR if str(spec) == "default" else Path(spec)
+    if not (path / "config.json").is_file():
+        raise FileNotFoundError(f"{what} {spec}: {path} holds no model (config.json); expected 'default' or a "
+                                f"model directory")
+    return path
+
+
 def relayout_decoder(vae, target: VAEConfig, seed: int):
     """``vae`` rebuilt with ``target``'s (decoder) layout: every parameter whose path and shape exist in
     both is copied (so the encoder side, and the latent space, are exactly ``vae``'s), the rest is
@@ -117,7 +127,7 @@ def official_dit(model: str | Path, dest: str | Path, seed: int = 0) -> Path:
     ``ActionConfig.mouse_input_gain`` 1), every size as ``model``'s. Trained through the DiT stages with the
     same steps and data as ``model``'s DiT, it is the control that measures those options (docs/training.md,
     "The control row")."""
-    base = WorldModel.load(DEFAULT_MODEL_DIR if str(model) == "default" else model)
+    base = WorldModel.load(model_directory(model))
     old = base.config
     cfg = old.replace(dit=dataclasses.replace(old.dit, camera_warp=(0.0, 0.0)),
                       action=dataclasses.replace(old.action, mouse_input_gain=1.0))

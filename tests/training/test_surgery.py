@@ -35,3 +35,12 @@ def test_official_dit_keeps_the_autoencoder_and_starts_a_fresh_official_dit(tmp_
     assert all(np.array_equal(a, b) for a, b in zip(_leaves(control.params[0]), _leaves(fresh)))
     in_channels = control.params[0]["patch_embedding"]["kernel"].get_value().shape[-2]
     assert in_channels == cfg.in_channels < ours.patch_in_channels  # no warped-latent rows
+
+
+def test_official_dit_names_a_missing_model(tmp_path):
+    import pytest
+
+    from training.surgery import official_dit
+
+    with pytest.raises(FileNotFoundError, match="holds no model"):
+        official_dit(tmp_path / "nothing", tmp_path / "control")
