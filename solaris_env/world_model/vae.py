@@ -40,6 +40,7 @@ from solaris_env.world_model.config import VAEConfig
 Cache = Any  # a pytree of arrays; None = the start of a stream
 _NORM_EPS = 1e-12  # RMS_norm divides by max(||x||, eps), like torch's F.normalize
 _LOGVAR_RANGE = (-30.0, 20.0)
+LOGVAR_INIT = -8.0  # the encoder's initial log-variance (std 0.018): CausalVideoVAE.__init__
 
 
 # ---------------------------------------------------------------------------------------------
@@ -343,6 +344,10 @@ class CausalVideoVAE(nnx.Module):
         self.cfg = cfg
         self.encoder = Encoder(cfg, rngs=rngs)
         self.conv1 = CausalConv3d(2 * cfg.z_dim, 2 * cfg.z_dim, (1, 1, 1), **kw)  # moments (mu, logvar)
+        # the logvar half starts at LOGVAR_INIT everywhere (weights 0): a near-deterministic posterior from the
+        # first update, so the decoder sees the encoder's signal at once (docs/model.md §7.1)
+        self.conv1.kernel[...] = self.conv1.kernel[...].at[..., cfg.z_dim:].set(0.0)
+        self.conv1.bias[...] = self.conv1.bias[...].at[cfg.z_dim:].set(LOGVAR_INIT)
         self.conv2 = CausalConv3d(cfg.z_dim, cfg.z_dim, (1, 1, 1), **kw)  # latent -> decoder input
         self.decoder = Decoder(cfg, rngs=rngs)
 

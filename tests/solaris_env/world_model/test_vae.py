@@ -10,8 +10,16 @@ import pytest
 from flax import nnx
 
 from solaris_env.world_model.config import VAEConfig, WorldModelConfig
-from solaris_env.world_model.vae import (CausalVideoVAE, SpatialAttention, _run_layers, denormalize_latents,
-                                         kl_divergence, normalize_latents, sample_posterior)
+from solaris_env.world_model.vae import (
+    LOGVAR_INIT,
+    CausalVideoVAE,
+    SpatialAttention,
+    _run_layers,
+    denormalize_latents,
+    kl_divergence,
+    normalize_latents,
+    sample_posterior,
+)
 
 CFG = WorldModelConfig.test()  # 32x32 frames -> 4x4x4 latents, temporal x4
 TF = CFG.vae.temporal_factor
@@ -265,6 +273,17 @@ def test_sample_posterior_and_kl():
     assert abs(float(s.mean()) - 0.5) < 0.05 and abs(float(s.std()) - 0.5) < 0.05
     assert float(jnp.abs(kl_divergence(jnp.zeros_like(mu), jnp.zeros_like(mu))).max()) == 0.0
     assert kl_divergence(mu, logvar).shape == (4,)
+
+
+def test_a_fresh_vae_has_a_near_deterministic_posterior(micro_vae):
+    """At initialisation the log-variance is LOGVAR_INIT for every input and latent (its weights are 0), so a
+    posterior sample is the mean up to noise of std exp(LOGVAR_INIT / 2), while the mean depends on the input."""
+    x = jax.random.uniform(jax.random.key(3), (2, 5, 16, 16, 3), minval=-1, maxval=1)
+    mu, logvar = micro_vae.encode_moments(x)
+    np.testing.assert_array_equal(np.asarray(logvar), np.full(logvar.shape, LOGVAR_INIT, np.float32))
+    assert float(jnp.std(mu)) > 20 * float(np.exp(LOGVAR_INIT / 2))
+    z = sample_posterior(mu, logvar, key=jax.random.key(0, impl="rbg"))
+    assert float(jnp.abs(z - mu).max()) < 6 * float(np.exp(LOGVAR_INIT / 2))
 
 
 @pytest.mark.slow  # ~5-10 s on 2 shared cores, nearly all of it compiling the training step
