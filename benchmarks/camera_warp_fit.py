@@ -36,7 +36,15 @@ import numpy as np
 RESULTS = Path(__file__).parent / "results" / "camera_warp_fit.json"
 BINS_DEG = ((2.0, 8.0), (8.0, 20.0), (20.0, 90.0))  # |turn| per latent frame
 OTHER_AXIS_MAX_DEG = 2.0
-LATENT_SCAN = tuple(np.round(np.arange(-0.06, 0.1201, 0.01), 3))  # latent pixels per degree
+# The scan in frame pixels per degree (-0.48 to 0.96 in steps of 0.08): at 8x spatial compression, -0.06 to 0.12
+# latent pixels per degree in steps of 0.01. ``latent_scan`` divides it by the model's compression, so a 16x16
+# latent (4x) scans -0.12 to 0.24 and its configured warp lies inside the scan.
+FRAME_SCAN = tuple(np.round(np.arange(-6, 13) * 0.08, 2))
+
+
+def latent_scan(compression: int) -> tuple[float, ...]:
+    """The scan in latent pixels per degree for a VAE of this spatial compression."""
+    return tuple(round(s / compression, 4) for s in FRAME_SCAN)
 
 
 def shift_frames(x_NhwC: np.ndarray, shift_N2: np.ndarray) -> np.ndarray:
@@ -126,8 +134,8 @@ def clips(data_dir: str | Path, model, segments: int, steps: int, seed: int = 0)
 def run(model, data_dir: str | Path, segments: int, steps: int) -> dict:
     c = clips(data_dir, model, segments, steps)
     configured = tuple(model.config.dit.camera_warp)
-    latent = fit(c["prev"], c["next"], c["turns"], configured, LATENT_SCAN)
-    pixel_scales = [s * c["compression"] for s in LATENT_SCAN]  # the same scan in frame pixels per degree
+    latent = fit(c["prev"], c["next"], c["turns"], configured, latent_scan(c["compression"]))
+    pixel_scales = list(FRAME_SCAN)  # the same scan in frame pixels per degree
     pixel = fit(c["grey_prev"][..., None], c["grey_next"][..., None], c["turns"],
                 tuple(v * c["compression"] for v in configured), pixel_scales, border=c["compression"])
     for axis in pixel.values():  # report in latent pixels per degree, as the warp is configured

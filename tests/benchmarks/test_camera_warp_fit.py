@@ -2,7 +2,9 @@
 
 import numpy as np
 
-from benchmarks.camera_warp_fit import LATENT_SCAN, fit, shift_frames
+from benchmarks.camera_warp_fit import FRAME_SCAN, fit, latent_scan, shift_frames
+
+LATENT_SCAN = latent_scan(8)
 
 
 def _moving_field(per_degree: float, axis: int, seed: int = 0):
@@ -33,3 +35,9 @@ def test_fit_reads_pitch_as_a_downward_move():
     row = next(r for r in fit(prev, nxt, turns, configured=(0.1, 0.0), scales=LATENT_SCAN)["pitch"]["bins"]
                if r["frames"])
     assert row["best_per_degree"] == 0.1 and row["configured_helps"]
+
+
+def test_the_scan_scales_with_the_latent_resolution():
+    assert latent_scan(8)[0] == -0.06 and latent_scan(8)[-1] == 0.12 and 0.05 in latent_scan(8)
+    assert latent_scan(4) == tuple(round(2 * s, 4) for s in latent_scan(8)) and len(FRAME_SCAN) == 19
+    assert min(latent_scan(4)) < 0 < 0.1122 < 0.1996 < max(latent_scan(4))  # the tiny16 warp (yaw, pitch) lies inside
