@@ -26,16 +26,16 @@ def solid_frames(env, values):
     return {a: np.full((env.height, env.width, 3), v, np.uint8) for a, v in zip(env.possible_agents, values)}
 
 
-@pytest.mark.slow  # ~35 s on 2 shared cores, most of it compiling the tiny model's step
+@pytest.mark.slow  # ~35 s on 2 shared cores, most of it compiling the model's step
 def test_shipped_default_model_loads_steps_and_is_small():
-    """The shipped default (a legacy checkpoint: its deleted temporal refiner is dropped on load, the weights
-    file is the committed one) loads and steps in ``DreamParallelEnv``."""
+    """The shipped default (the tiny16 layout since session 29; the weights file is the committed one) loads
+    and steps in ``DreamParallelEnv``."""
     size = sum(f.stat().st_size for f in DEFAULT_CHECKPOINT.iterdir())
     assert size < 50 * 2**20, f"{DEFAULT_CHECKPOINT} is {size / 2**20:.1f} MiB (budget 50)"
     for name in ("training_log.md", "eval.json", "train_config.json", "contact_sheet.png"):
         assert (DEFAULT_CHECKPOINT / name).is_file(), name
     model = WorldModel.load(DEFAULT_CHECKPOINT)
-    assert model.config.name == "tiny" and model.num_players == 2 and model.frame_shape == (64, 64, 3)
+    assert model.config.name == "tiny16" and model.num_players == 2 and model.frame_shape == (64, 64, 3)
     env = DreamParallelEnv(model=model)
     obs, _ = env.reset(seed=0)
     obs, _, _, _, infos = env.step({a: noop() for a in env.agents})

@@ -67,7 +67,7 @@ def test_shard_writer_refuses_what_does_not_fit_and_loader_refuses_incomplete_se
 
 
 def test_the_default_model_fits_the_transport_as_float16_shards(tmp_path):
-    """The shipped tiny model: 16 MiB shards, 64 MiB in all, as the GPU sprint exports it."""
+    """The shipped model: 16 MiB shards, 64 MiB in all, as the GPU sprint exports it."""
     from solaris_env.world_model.world_model import WorldModel
     from training.surgery import DEFAULT_MODEL_DIR
 
