@@ -130,7 +130,7 @@ def cmd_sprint(args) -> int:
 
 def cmd_install(args) -> int:
     from training.surgery import install_default
-    dest = install_default(args.model, args.dest, tuple(args.files))
+    dest = install_default(args.model, args.dest, tuple(args.files), action_guidance=args.action_guidance)
     print(f"installed {args.model} as the default model at {dest}")
     return 0
 
@@ -205,6 +205,8 @@ def build_parser() -> argparse.ArgumentParser:
                                  "lineage.json)")
     i.add_argument("--dest", default=None, help="default: solaris_env/assets/default")
     i.add_argument("--files", nargs="*", default=[], help="copied alongside (training log, eval.json, contact sheet)")
+    i.add_argument("--action-guidance", type=float, default=None, metavar="G",
+                   help="the installed config's SamplerConfig.action_guidance (>= 0; 1 = off; default: the model's)")
     i.set_defaults(func=cmd_install)
     for p in sub.choices.values():
         add_debug_flag(p)
