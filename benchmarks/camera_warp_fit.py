@@ -1,4 +1,4 @@
-"""Does the camera warp move a model's latents the way the engine's turns move them?
+"""Do the camera and walk warps move a model's latents the way the engine's turns and walks move them?
 
     .venv/bin/solaris-engine collect --out data/heldout64 --episodes 24 --world mixed --resolution 64 \\
         --seed 99 --instances 10 --test-fraction 1 --workers 2
@@ -18,6 +18,11 @@ latents is left out (new content enters there). Next to it, the same scan on the
 last frame of each latent chunk, grey, a border of one latent pixel's width left out, which also drops the
 hotbar; pixels per degree divided by the VAE's spatial compression): the camera geometry the warp assumes,
 and a check that the mouse is read at the right ticks.
+
+The walk warp (``DiTConfig.walk_warp``) gets the same treatment on frames that walk without turning (forward
+at walking and at sprinting speed, back, strafe; ``camera.frame_moves``), scanning eye heights per tick, and on
+the engine's own frames from controlled walks (``engine_walk_fit``: one key held from five starts), which
+checks the geometry itself.
 
 A warp whose configured ``s`` scores above ``s = 0`` feeds the DiT a previous frame further from the truth than
 no warp at all. Writes ``benchmarks/results/camera_warp_fit.json``.
@@ -102,6 +107,88 @@ def fit(prev_NhwC: np.ndarray, next_NhwC: np.ndarray, turns_N2: np.ndarray, conf
     return out
 
 
+WALK_SCAN = (0.0, 0.033, 0.067, 0.1, 0.133, 0.167, 0.2, 0.267)  # eye heights per tick (DiTConfig.walk_warp)
+WALK_BINS = (("forward", 0, 2.0, 4.5), ("forward", 0, 4.5, 9.0), ("back", 0, -9.0, -2.0),
+             ("strafe", 1, 2.0, 9.0))  # name, axis of camera.frame_moves, range of ticks walked
+STILL_MAX = 0.5  # ticks walked on the other axis of a walking frame
+
+
+def walk_frames(prev_NhwC: np.ndarray, next_NhwC: np.ndarray, moves_N2: np.ndarray, turns_N2: np.ndarray,
+                configured: float, scales: Sequence[float] = WALK_SCAN, border: int = 1) -> list[dict]:
+    """Per kind of walk (``WALK_BINS``; frames that turn less than ``OTHER_AXIS_MAX_DEG`` about both axes, a
+    strafe counted either way): frames, and the mean squared difference of ``next`` and ``prev`` walked by
+    ``s * moves`` (``camera.walk_latents``) at no walk, at ``configured`` and at the best ``s`` of the scan."""
+    import jax.numpy as jnp
+
+    from solaris_env.world_model import camera
+
+    still = np.all(np.abs(turns_N2) < OTHER_AXIS_MAX_DEG, axis=1)
+    rows = []
+    for name, axis, lo, hi in WALK_BINS:
+        amount = np.abs(moves_N2[:, axis]) if name == "strafe" else moves_N2[:, axis]
+        sel = still & (amount >= lo) & (amount < hi) & (np.abs(moves_N2[:, 1 - axis]) < STILL_MAX)
+        row = {"walk": name, "ticks": [lo, hi], "frames": int(sel.sum())}
+        if sel.any():
+            errs = []
+            for s in list(scales) + [configured]:
+                moved = camera.walk_latents(jnp.asarray(prev_NhwC[sel], jnp.float32),
+                                            jnp.asarray(s * moves_N2[sel], jnp.float32))
+                d = np.asarray(moved) - next_NhwC[sel]
+                errs.append(float(np.mean(d[:, border:-border, border:-border] ** 2)))
+            best = int(np.argmin(errs[:-1]))
+            row.update({"mse_no_walk": round(errs[0], 4), "mse_configured": round(errs[-1], 4),
+                        "best_per_tick": float(scales[best]), "mse_best": round(errs[best], 4),
+                        "configured_helps": bool(errs[-1] < errs[0])})
+        rows.append(row)
+    return rows
+
+
+ENGINE_WALKS = (("forward", 0, 1.0), ("back", 0, -1.0), ("right", 1, 1.0))  # key, move axis, sign
+ENGINE_STARTS = ((11, "flat"), (13, "flat"), (15, "flat"), (12, "normal"), (14, "normal"))  # reset seed, world
+
+
+def engine_walk_fit(steps: int = 10, warmup: int = 3, scales: Sequence[float] = WALK_SCAN,
+                    starts: Sequence[tuple[int, str]] = ENGINE_STARTS) -> list[dict]:
+    """The walk geometry on the engine's own frames: player 0 holds one movement key from each start
+    (``ENGINE_STARTS``, k = 4 ticks per step, the partner standing), and from step ``warmup`` on (top speed)
+    each step's grey frame is compared with the previous one walked by ``s * 4`` ticks (``camera.walk_latents``,
+    a border of 4 pixels left out). The scale that fits best is what ``walk_warp`` should be if the latents
+    followed the frames."""
+    import jax.numpy as jnp
+
+    from solaris_env.real_env import RealParallelEnv
+    from solaris_env.spaces import noop
+    from solaris_env.world_model import camera
+
+    rows = []
+    for key, axis, sign in ENGINE_WALKS:
+        prev, nxt = [], []
+        for seed, world in starts:
+            env = RealParallelEnv(world=world, ticks_per_step=4)
+            obs, _ = env.reset(seed=seed)
+            me = env.possible_agents[0]
+            grey = [obs[me].astype(np.float32).mean(-1)]
+            for _ in range(steps):
+                act = {a: noop() for a in env.possible_agents}
+                act[me][key] = 1
+                obs, *_ = env.step(act)
+                grey.append(obs[me].astype(np.float32).mean(-1))
+            prev += grey[warmup:-1]
+            nxt += grey[warmup + 1:]
+        p_, q = np.stack(prev)[..., None], np.stack(nxt)
+        errs = []
+        for s in scales:
+            move = np.zeros((len(p_), 2), np.float32)
+            move[:, axis] = sign * 4 * s
+            walked = np.asarray(camera.walk_latents(jnp.asarray(p_), jnp.asarray(move)))[..., 0]
+            errs.append(float(np.mean((walked - q)[:, 4:-4, 4:-4] ** 2)))
+        best = int(np.argmin(errs))
+        rows.append({"key": key, "frames": len(q), "mse_no_walk": round(errs[0], 1),
+                     "best_per_tick": float(scales[best]), "mse_best": round(errs[best], 1),
+                     "mse_per_scale": dict(zip(map(str, scales), (round(e, 1) for e in errs)))})
+    return rows
+
+
 def clips(data_dir: str | Path, model, segments: int, steps: int, seed: int = 0) -> dict[str, np.ndarray]:
     """Held-out clips through the model's VAE: per latent frame f >= 1 of every clip and player, the previous
     and next latent (N, h, w, C), the last frame of each latent chunk in grey (N, H, W) before and after, and
@@ -124,11 +211,12 @@ def clips(data_dir: str | Path, model, segments: int, steps: int, seed: int = 0)
     batch = prepare_batch(vae, image_encoder, jnp.asarray(seg["obs"]), jnp.asarray(seg["act"]), cfg)
     x0 = np.asarray(batch["x0"], np.float32)  # (B, P, F, h, w, C)
     turns = np.asarray(camera.frame_turns(action_windows(batch["mouse"], cfg, x0.shape[2]), k))  # (B, P, F, 2)
+    moves = np.asarray(camera.frame_moves(action_windows(batch["keyboard"], cfg, x0.shape[2]), k))
     grey = seg["obs"][:, ::k].astype(np.float32).mean(axis=-1).swapaxes(1, 2)  # (B, P, F, H, W)
     flat = lambda a: a[:, :, 1:].reshape((-1,) + a.shape[3:])
     before = lambda a: a[:, :, :-1].reshape((-1,) + a.shape[3:])
     return {"prev": before(x0), "next": flat(x0), "grey_prev": before(grey), "grey_next": flat(grey),
-            "turns": flat(turns), "compression": cfg.frame_height // x0.shape[3]}
+            "turns": flat(turns), "moves": flat(moves), "compression": cfg.frame_height // x0.shape[3]}
 
 
 def run(model, data_dir: str | Path, segments: int, steps: int) -> dict:
@@ -143,8 +231,15 @@ def run(model, data_dir: str | Path, segments: int, steps: int) -> dict:
         for row in axis["bins"]:
             if "best_per_degree" in row:
                 row["best_per_degree"] = round(row["best_per_degree"] / c["compression"], 4)
-    return {"latent_frames": len(c["turns"]), "spatial_compression": int(c["compression"]),
-            "camera_warp": list(configured), "latents": latent, "frames": pixel}
+    walk = float(model.config.dit.walk_warp)
+    cmp = c["compression"]
+    walking = {"latents": walk_frames(c["prev"], c["next"], c["moves"], c["turns"], walk),
+               "frames": walk_frames(c["grey_prev"][..., None], c["grey_next"][..., None], c["moves"], c["turns"],
+                                     walk, border=cmp),
+               "engine": engine_walk_fit()}
+    return {"latent_frames": len(c["turns"]), "spatial_compression": int(cmp),
+            "camera_warp": list(configured), "latents": latent, "frames": pixel,
+            "walk_warp": walk, "walking": walking}
 
 
 def table(result: dict) -> str:
@@ -158,6 +253,18 @@ def table(result: dict) -> str:
                 lines.append(f"{axis:6s} {space:7s} {lo:4.0f}-{hi:<4.0f} {row['frames']:7d} {row['mse_no_warp']:12.4f} "
                              f"{row['mse_configured']:15.4f} {row['best_per_degree']:7.3f} {row['mse_best']:10.4f}  "
                              f"{row['configured_helps']}")
+    lines.append("walk     space    ticks    frames  mse no walk  mse configured  best s   mse best  configured helps")
+    for space in ("latents", "frames"):
+        for row in result["walking"][space]:
+            if row["frames"] == 0:
+                continue
+            lo, hi = row["ticks"]
+            lines.append(f"{row['walk']:8s} {space[:-1]:7s} {lo:4.1f}-{hi:<4.1f} {row['frames']:6d} "
+                         f"{row['mse_no_walk']:12.4f} {row['mse_configured']:15.4f} {row['best_per_tick']:7.3f} "
+                         f"{row['mse_best']:10.4f}  {row['configured_helps']}")
+    lines.append("engine walks (grey frames, top speed): " + ", ".join(
+        f"{r['key']} best {r['best_per_tick']} (mse {r['mse_no_walk']} -> {r['mse_best']}, {r['frames']} frames)"
+        for r in result["walking"]["engine"]))
     return "\n".join(lines)
 
 

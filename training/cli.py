@@ -107,7 +107,8 @@ def cmd_with_decoder(args) -> int:
 
 def cmd_action_conditioning(args) -> int:
     from training.surgery import with_action_conditioning
-    dest = with_action_conditioning(args.model, args.out, args.mouse_gain, camera_warp=args.camera_warp)
+    dest = with_action_conditioning(args.model, args.out, args.mouse_gain, camera_warp=args.camera_warp,
+                                    walk_warp=args.walk_warp)
     print(f"wrote {dest}")
     return 0
 
@@ -191,6 +192,9 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--camera-warp", type=float, nargs=2, default=None, metavar=("H", "W"),
                    help="turn on DiTConfig.camera_warp (latent pixels per degree of pitch / yaw); the patch "
                         "embedding's new rows start at zero")
+    g.add_argument("--walk-warp", type=float, default=None, metavar="S",
+                   help="set DiTConfig.walk_warp (eye heights per tick of a held movement key; 0 = off; needs the "
+                        "camera warp): the warped previous latent also follows the walk")
     g.add_argument("--out", required=True, help="the new model directory")
     g.set_defaults(func=cmd_action_conditioning)
     o = sub.add_parser("official-dit", help="a model's VAE and image encoder under a fresh DiT in the official "

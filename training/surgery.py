@@ -89,14 +89,18 @@ def with_decoder(model: str | Path, decoder_from: str | Path, dest: str | Path) 
 
 
 def with_action_conditioning(model: str | Path, dest: str | Path, mouse_input_gain: float | None = None,
-                             camera_warp: tuple[float, float] | None = None) -> Path:
+                             camera_warp: tuple[float, float] | None = None,
+                             walk_warp: float | None = None) -> Path:
     """Write ``model`` under another action conditioning, computing the same function (None keeps a setting):
 
     * ``mouse_input_gain``: the mouse rows of every ``mouse_mlp`` first kernel scaled by old / new gain, so
       further training moves the camera pathway ``new / old`` times faster per Adam step;
     * ``camera_warp=(h, w)``: turns on ``DiTConfig.camera_warp`` (latent pixels per degree) with the patch
       embedding's new input rows (the warped previous latent) at zero; from a model that has it, only its scale
-      changes (the weights are kept: the function changes wherever the camera turns).
+      changes (the weights are kept: the function changes wherever the camera turns);
+    * ``walk_warp``: sets ``DiTConfig.walk_warp`` (eye heights per tick; needs the camera warp, given or already
+      on). The weights are kept: the function changes only where the movement keys are held, and fine-tuning
+      teaches the DiT to read the walked warp.
     """
     base = WorldModel.load(model)
     old = base.config
@@ -104,6 +108,8 @@ def with_action_conditioning(model: str | Path, dest: str | Path, mouse_input_ga
         old.action,
         mouse_input_gain=old.action.mouse_input_gain if mouse_input_gain is None else float(mouse_input_gain))
     dit = old.dit if camera_warp is None else dataclasses.replace(old.dit, camera_warp=tuple(map(float, camera_warp)))
+    if walk_warp is not None:
+        dit = dataclasses.replace(dit, walk_warp=float(walk_warp))
     if old.dit.camera_warp_enabled and not dit.camera_warp_enabled:
         raise ValueError(f"{model} was trained with camera_warp={old.dit.camera_warp}; dropping it would drop its "
                          "patch embedding's trained warp rows")

@@ -15,10 +15,12 @@ channel instead of a sub-token interpolation the DiT has to learn.
 
 from __future__ import annotations
 
+import math
+
 import jax
 import jax.numpy as jnp
 
-from solaris_env.spaces import CAMERA_SCALE_DEG
+from solaris_env.spaces import CAMERA_SCALE_DEG, MODEL_INDEX
 
 
 def frame_turns(mouse_BPFWA: jax.Array, frames_per_step: int) -> jax.Array:
@@ -57,3 +59,78 @@ def shift_latents(x_NhwC: jax.Array, shift_N2: jax.Array) -> jax.Array:
         raise ValueError(f"shift_latents takes x (N, h, w, C) and shift (N, 2); got {x_NhwC.shape}, {shift_N2.shape}")
     shift = shift_N2.astype(jnp.float32)
     return _shift_axis(_shift_axis(x_NhwC, shift[:, 0], 1), shift[:, 1], 2)
+
+
+# ---------------------------------------------------------------------------------------------
+# Walking (``DiTConfig.walk_warp``, docs/model.md §8.1)
+# ---------------------------------------------------------------------------------------------
+
+# The view of the frames (docs/engine.md; Minecraft's default): a 16:9 window with a 70 deg vertical field of
+# view, resampled to the square frame. (height, width) tangents of the half-angles at the frame's edges.
+VIEW_HALF_TAN = (math.tan(math.radians(35.0)), math.tan(math.radians(35.0)) * 16.0 / 9.0)
+_KEY = {name: MODEL_INDEX[name] for name in ("forward", "back", "left", "right", "sneak", "sprint")}
+SPRINT_FACTOR = 5.612 / 4.317  # Minecraft's sprint / walk speed
+SNEAK_FACTOR = 1.295 / 4.317  # sneak / walk
+_MIN_DEPTH = 0.2  # the source depth factor is kept above this (a step back on the nearest rows)
+
+
+def frame_moves(keyboard_BPFWK: jax.Array, frames_per_step: int) -> jax.Array:
+    """(B, P, F, 2) [forward, right] how far the player walked between latent frames i - 1 and i, in ticks of
+    walking at full speed: the last ``k`` ticks of the frame's keyboard window, forward - back and right - left,
+    a diagonal normalised to length 1 (as the engine and Minecraft do), sprint (forward only) and sneak scaling
+    the speed. Momentum is left out (a fitted ``walk_warp`` absorbs the average)."""
+    if keyboard_BPFWK.shape[-1] <= max(_KEY.values()):
+        raise ValueError(f"the walk reads the movement keys of the model's keyboard vector "
+                         f"(spaces.MODEL_ACTION_KEYS); the keyboard windows have {keyboard_BPFWK.shape[-1]} dims")
+    keys = keyboard_BPFWK[..., -frames_per_step:, :].astype(jnp.float32)
+    forward = keys[..., _KEY["forward"]] - keys[..., _KEY["back"]]
+    right = keys[..., _KEY["right"]] - keys[..., _KEY["left"]]
+    norm = jnp.maximum(jnp.sqrt(forward ** 2 + right ** 2), 1.0)
+    speed = jnp.where((keys[..., _KEY["sprint"]] > 0) & (forward > 0), SPRINT_FACTOR, 1.0)
+    speed = jnp.where(keys[..., _KEY["sneak"]] > 0, SNEAK_FACTOR, speed)
+    step = jnp.stack([forward, right], axis=-1) * (speed / norm)[..., None]
+    return step.sum(axis=-2)
+
+
+def walk_source(h: int, w: int, move_N2: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Where each latent pixel of the next view was in the previous one after walking ``move_N2`` [forward,
+    right] eye heights: (N, h, w) source rows and columns (fractional latent pixels).
+
+    The scene is a floor below the eye and a ceiling above it, each one eye height away (the "tunnel"; the sky
+    is uniform, so moving it costs nothing, and a flat world's ground is exactly the floor). A view ray at
+    tangents (x, v) from the view's centre (v down) meets the plane at depth 1/|v| eye heights; walking f
+    forward and s right it was at depth 1/|v| + f and s further right before, so it came from
+    v_src = v / (1 + |v| f), x_src = (x + |v| s) / (1 + |v| f). Rows at the horizon do not move."""
+    ty, tx = VIEW_HALF_TAN
+    v = ((jnp.arange(h, dtype=jnp.float32) + 0.5) / h * 2.0 - 1.0) * ty  # (h,) down
+    x = ((jnp.arange(w, dtype=jnp.float32) + 0.5) / w * 2.0 - 1.0) * tx  # (w,) right
+    av = jnp.abs(v)[None, :, None]
+    f, s = move_N2[:, 0, None, None], move_N2[:, 1, None, None]
+    depth = jnp.maximum(1.0 + av * f, _MIN_DEPTH)  # (N, h, 1)
+    v_src = v[None, :, None] / depth
+    x_src = (x[None, None, :] + av * s) / depth
+    rows = (v_src / ty + 1.0) / 2.0 * h - 0.5
+    cols = (x_src / tx + 1.0) / 2.0 * w - 0.5
+    return jnp.broadcast_to(rows, (move_N2.shape[0], h, w)), cols
+
+
+def walk_latents(x_NhwC: jax.Array, move_N2: jax.Array) -> jax.Array:
+    """Each latent frame's content as seen after walking ``move_N2`` [forward, right] eye heights
+    (``walk_source``; bilinear, indices clamped so the border repeats the edge). A zero move returns the frame
+    unchanged."""
+    if x_NhwC.ndim != 4 or move_N2.shape != (x_NhwC.shape[0], 2):
+        raise ValueError(f"walk_latents takes x (N, h, w, C) and move (N, 2); got {x_NhwC.shape}, {move_N2.shape}")
+    n, h, w, c = x_NhwC.shape
+    rows, cols = walk_source(h, w, move_N2.astype(jnp.float32))
+    r0, c0 = jnp.floor(rows), jnp.floor(cols)
+    fr, fc = (rows - r0)[..., None].astype(x_NhwC.dtype), (cols - c0)[..., None].astype(x_NhwC.dtype)
+    flat = x_NhwC.reshape(n, h * w, c)
+
+    def take(r, col):
+        idx = jnp.clip(r, 0, h - 1).astype(jnp.int32) * w + jnp.clip(col, 0, w - 1).astype(jnp.int32)
+        return jnp.take_along_axis(flat, idx.reshape(n, h * w, 1), axis=1).reshape(n, h, w, c)
+
+    top = (1 - fc) * take(r0, c0) + fc * take(r0, c0 + 1)
+    bottom = (1 - fc) * take(r0 + 1, c0) + fc * take(r0 + 1, c0 + 1)
+    still = jnp.all(move_N2 == 0, axis=-1)[:, None, None, None]  # standing still returns x itself, bit for bit
+    return jnp.where(still, x_NhwC, (1 - fr) * top + fr * bottom)

@@ -53,6 +53,10 @@ class DiTConfig:
     # frame's camera turn times these (height, width) latent pixels per degree (``camera.shift_latents``), joins
     # the patch embedding's input; a turn then shows up in an input channel instead of having to be synthesised.
     camera_warp: tuple[float, float] = (0.0, 0.0)
+    # Walk warp (ours; 0 = off): the warped previous latent is also moved by the frame's walk, at this many eye
+    # heights per tick of a held movement key (``camera.walk_latents``; Minecraft's walking speed over its eye
+    # height is 0.216 / 1.62 = 0.133). Needs the camera warp, whose input channels it shares.
+    walk_warp: float = 0.0
 
     def __post_init__(self):
         _require(self.dim % self.num_heads == 0, f"dim={self.dim} must be divisible by num_heads={self.num_heads}")
@@ -60,6 +64,10 @@ class DiTConfig:
                  f"camera_warp must be two finite numbers (height, width latent pixels per degree), got {self.camera_warp}")
         _require(self.multiplayer == "attn" or not any(self.camera_warp),
                  f"camera_warp={self.camera_warp} needs multiplayer='attn' (one view per player)")
+        _require(math.isfinite(self.walk_warp) and self.walk_warp >= 0.0,
+                 f"walk_warp must be a finite number >= 0 (eye heights per tick), got {self.walk_warp}")
+        _require(self.walk_warp == 0.0 or self.camera_warp_enabled,
+                 f"walk_warp={self.walk_warp} moves the camera warp's input; it needs camera_warp on")
         _require(self.head_dim % 2 == 0, f"head_dim={self.head_dim} must be even for RoPE")
         _require(self.multiplayer in MULTIPLAYER_METHODS,
                  f"multiplayer must be one of {MULTIPLAYER_METHODS}, got {self.multiplayer!r}")

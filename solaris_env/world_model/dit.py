@@ -593,13 +593,17 @@ class WorldDiT(nnx.Module):
         windows = lambda a: jnp.stack([a[:, :, k * f:k * f + w] for f in range(num_frames)], axis=2)
         return self._prepare(x, t, cond, None, windows(mouse), windows(keyboard), self._cached_previous(x, cache))
 
-    def _warped(self, prev_BPFhwC, mouse_BPFWA) -> jax.Array:
-        """Each frame's previous latent, its content moved by the frame's camera turn (``camera_warp``)."""
+    def _warped(self, prev_BPFhwC, mouse_BPFWA, keyboard_BPFWA) -> jax.Array:
+        """Each frame's previous latent, its content moved by the frame's walk (``walk_warp``) and then by its
+        camera turn (``camera_warp``)."""
         if prev_BPFhwC is None:
             raise ValueError("camera_warp is on but no previous latents were given")
         turns = camera_lib.frame_turns(mouse_BPFWA, self.cfg.frames_per_step)
         shift = camera_lib.content_shift(turns, self.cfg.dit.camera_warp)  # (B, P, F, 2)
         flat = prev_BPFhwC.reshape((-1,) + prev_BPFhwC.shape[3:]).astype(jnp.float32)
+        if self.cfg.dit.walk_warp:
+            moves = camera_lib.frame_moves(keyboard_BPFWA, self.cfg.frames_per_step) * self.cfg.dit.walk_warp
+            flat = camera_lib.walk_latents(flat, moves.reshape(-1, 2))
         return camera_lib.shift_latents(flat, shift.reshape(-1, 2)).reshape(prev_BPFhwC.shape)
 
     def _cached_previous(self, x, cache: kv_cache.DiTCache):
@@ -646,7 +650,7 @@ class WorldDiT(nnx.Module):
         dtype = jnp.dtype(self.cfg.dit.dtype)
         parts = [x, cond]  # channel order: [x, mask, first-frame latent (, warped previous latent)]
         if self.cfg.dit.camera_warp_enabled:
-            parts.append(self._warped(prev, mouse_BPFWA))
+            parts.append(self._warped(prev, mouse_BPFWA, keyboard_BPFWA))
         xc = jnp.concatenate(parts, axis=-1).astype(dtype)
         tokens = self.patch_embedding(xc.reshape((b * p,) + xc.shape[2:]))  # (B*P, F, h, w, D)
         tokens = tokens.reshape(b, p, f, -1, tokens.shape[-1])

@@ -197,6 +197,21 @@ def test_camera_warp_retrofit_computes_the_same(run, tmp_path):
     assert np.abs(outs[0] - outs[1]).max() <= 1
     with pytest.raises(ValueError, match="camera_warp"):
         with_action_conditioning(dest, tmp_path / "back", camera_warp=(0.0, 0.0))
+    # the walk warp keeps the weights: without the movement keys the same frames (walking changes only the warp
+    # input, whose rows are still zero here; test_camera.py checks that a trained warp reads the walk)
+    walk = tmp_path / "walk"
+    assert cli.main(["action-conditioning", str(dest), "--walk-warp", "0.1", "--out", str(walk)]) == 0
+    walker = WorldModel.load(walk)
+    assert walker.config.dit.walk_warp == 0.1 and walker.config.dit.camera_warp == (0.1, 0.06)
+    outs = []
+    for model in (new, walker):
+        state = model.init(first, 0)
+        for _ in range(3):
+            frames, state = model.step(state, actions)
+        outs.append(np.asarray(frames, np.int16))
+    assert np.array_equal(outs[0], outs[1])
+    with pytest.raises(ValueError, match="walk_warp"):
+        with_action_conditioning(src, tmp_path / "nowarp", walk_warp=0.1)
 
 
 def test_self_forcing_stage_runs_from_stages_2_and_3(run, data):

@@ -123,3 +123,125 @@ def test_warp_reads_the_given_clean_latents(warp_model):
     np.testing.assert_array_equal(fn(model, *args, clean=inp["noisy"]), base)
     delta = jnp.abs(fn(model, *args, clean=inp["clean"]) - base).max(axis=(0, 1, 3, 4, 5))
     assert float(delta[0]) == 0.0 and float(delta[1:].min()) > 1e-4, delta  # frame 0 has no previous frame
+
+
+# ---------------------------------------------------------------------------------------------
+# Walk warp
+# ---------------------------------------------------------------------------------------------
+
+def _keys(*held: str, ticks: int = 4, window: int = 12) -> np.ndarray:
+    """(1, 1, 1, window, 23) keyboard window holding ``held`` over its last ``ticks`` ticks."""
+    from solaris_env.spaces import KEYBOARD_DIM, MODEL_INDEX
+    kb = np.zeros((1, 1, 1, window, KEYBOARD_DIM), np.float32)
+    for name in held:
+        kb[..., window - ticks:, MODEL_INDEX[name]] = 1.0
+    return kb
+
+
+@pytest.mark.parametrize("held, ticks, expected", [
+    ((), 4, (0.0, 0.0)),
+    (("forward",), 4, (4.0, 0.0)),
+    (("forward",), 2, (2.0, 0.0)),
+    (("back",), 4, (-4.0, 0.0)),
+    (("right",), 4, (0.0, 4.0)),
+    (("left",), 3, (0.0, -3.0)),
+    (("forward", "back"), 4, (0.0, 0.0)),
+    (("forward", "right"), 4, (4 / np.sqrt(2), 4 / np.sqrt(2))),  # a diagonal is no faster
+    (("forward", "sprint"), 4, (4 * camera_lib.SPRINT_FACTOR, 0.0)),
+    (("back", "sprint"), 4, (-4.0, 0.0)),  # sprint only forward
+    (("forward", "sneak"), 4, (4 * camera_lib.SNEAK_FACTOR, 0.0)),
+    (("jump", "attack"), 4, (0.0, 0.0)),
+])
+def test_frame_moves_reads_the_movement_keys_of_the_frames_last_ticks(held, ticks, expected):
+    np.testing.assert_allclose(camera_lib.frame_moves(jnp.asarray(_keys(*held, ticks=ticks)), 4)[0, 0, 0],
+                               expected, rtol=1e-6, atol=1e-6)
+
+
+def test_frame_moves_ignores_older_ticks_and_names_a_short_keyboard():
+    kb = _keys("forward", ticks=8)  # 4 of the 8 held ticks belong to the previous latent frame
+    np.testing.assert_allclose(camera_lib.frame_moves(jnp.asarray(kb), 4)[0, 0, 0], [4.0, 0.0])
+    with pytest.raises(ValueError, match="movement keys"):
+        camera_lib.frame_moves(jnp.zeros((1, 1, 1, 12, 2)), 4)
+
+
+def test_walk_source_geometry():
+    h = w = 8
+    moves = jnp.asarray([[0.0, 0.0], [0.5, 0.0], [-0.5, 0.0], [0.0, 0.5]])
+    rows, cols = (np.asarray(a) for a in camera_lib.walk_source(h, w, moves))
+    grid_r, grid_c = np.meshgrid(np.arange(h), np.arange(w), indexing="ij")
+    np.testing.assert_allclose(rows[0], grid_r, atol=1e-5)  # standing still: every pixel from itself
+    np.testing.assert_allclose(cols[0], grid_c, atol=1e-5)
+    centre = (h - 1) / 2
+    # forward: every pixel comes from nearer the centre (the view expands), more so far from the horizon
+    assert np.all(np.abs(rows[1] - centre) < np.abs(grid_r - centre))
+    assert np.all(np.abs(cols[1] - centre) <= np.abs(grid_c - centre) + 1e-6)
+    drift = np.abs(rows[1] - grid_r)[:, 0]
+    assert np.all(np.diff(drift[h // 2:]) > 0) and np.all(np.diff(drift[:h // 2]) < 0)
+    np.testing.assert_allclose(rows[1], (h - 1) - rows[1][::-1], atol=1e-5)  # the floor mirrors the ceiling
+    # back: from further out (the view shrinks)
+    assert np.all(np.abs(rows[2] - centre) > np.abs(grid_r - centre))
+    # strafe right: the content moves left, the nearest rows (top and bottom) most; the rows stay
+    np.testing.assert_allclose(rows[3], grid_r, atol=1e-5)
+    shift = (cols[3] - grid_c)[:, 0]
+    assert np.all(shift > 0) and shift[0] == pytest.approx(shift[-1], abs=1e-5) and shift[0] > shift[h // 2 - 1]
+
+
+def test_walk_latents_is_exact_standing_still_and_samples_the_source():
+    x = jax.random.normal(jax.random.key(1), (2, 6, 6, 3))
+    moves = jnp.asarray([[0.0, 0.0], [0.6, -0.3]])
+    out = camera_lib.walk_latents(x, moves)
+    np.testing.assert_allclose(out[0], x[0], atol=1e-5)
+    rows, cols = camera_lib.walk_source(6, 6, moves)
+    r, c = 1, 4  # the source of one output pixel, bilinear by hand
+    sr, sc = float(rows[1, r, c]), float(cols[1, r, c])
+    r0, c0 = int(np.floor(sr)), int(np.floor(sc))
+    fr, fc = sr - r0, sc - c0
+    clip = lambda i: min(max(i, 0), 5)
+    px = lambda i, j: np.asarray(x[1, clip(i), clip(j)])
+    want = ((1 - fr) * ((1 - fc) * px(r0, c0) + fc * px(r0, c0 + 1))
+            + fr * ((1 - fc) * px(r0 + 1, c0) + fc * px(r0 + 1, c0 + 1)))
+    np.testing.assert_allclose(out[1, r, c], want, atol=1e-5)
+    with pytest.raises(ValueError, match="walk_latents"):
+        camera_lib.walk_latents(x, jnp.zeros((3, 2)))
+
+
+def test_walk_warp_config():
+    with pytest.raises(ValueError, match="walk_warp"):
+        DiTConfig(walk_warp=0.1)  # no camera warp to carry it
+    with pytest.raises(ValueError, match="walk_warp"):
+        DiTConfig(camera_warp=WARP, walk_warp=-0.1)
+    with pytest.raises(ValueError, match="walk_warp"):
+        DiTConfig(camera_warp=WARP, walk_warp=float("inf"))
+    assert DiTConfig(camera_warp=WARP, walk_warp=0.1).walk_warp == 0.1
+
+
+def _walking(seed: int):
+    cfg = _warp_cfg()
+    cfg = cfg.replace(dit=dataclasses.replace(cfg.dit, walk_warp=0.13))
+    inp = _inputs(cfg, seed=seed)
+    return cfg, _build(cfg, seed=seed), inp
+
+
+def test_walk_warp_cached_rollout_equals_teacher_forcing_and_causal():
+    cfg, model, inp = _walking(32)
+    from solaris_env.spaces import MODEL_INDEX
+    inp["keyboard"] = inp["keyboard"].at[..., MODEL_INDEX["forward"]].set(1.0)  # walking in every frame
+    _cached_rollout_agrees(cfg, model, inp)
+
+
+def test_walk_warp_moves_the_warp_input_only_when_walking():
+    """The same weights with and without the walk: the outputs differ where the movement keys are held, and
+    are equal where they are not (the turn-only warp is unchanged)."""
+    from solaris_env.spaces import MODEL_INDEX
+    cfg, model, inp = _walking(33)
+    still = cfg.replace(dit=dataclasses.replace(cfg.dit, walk_warp=0.0))
+    model_still = _build(still, seed=33)
+    nnx.update(model_still, nnx.state(model))
+    for name in ("forward", "back", "left", "right"):
+        inp["keyboard"] = inp["keyboard"].at[..., MODEL_INDEX[name]].set(0.0)
+    args = lambda i: (i["clean"], jnp.zeros_like(i["t"]), i["cond"], i["context"], i["mouse"], i["keyboard"])
+    np.testing.assert_array_equal(causal_fn(model, *args(inp)), causal_fn(model_still, *args(inp)))
+    walking = dict(inp, keyboard=inp["keyboard"].at[..., MODEL_INDEX["forward"]].set(1.0))
+    delta = jnp.abs(causal_fn(model, *args(walking)) - causal_fn(model_still, *args(walking)))
+    delta = delta.max(axis=(0, 1, 3, 4, 5))
+    assert float(delta[0]) == 0.0 and float(delta[1:].min()) > 1e-4, delta  # frame 0 has no previous frame
