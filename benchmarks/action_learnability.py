@@ -105,7 +105,7 @@ def run_variant(name: str, preset: str, steps: int, batch: int, latent_frames: i
     base = make_preset(preset)
     warp = matched_camera_warp(base, yaw) if name in CAMERA_WARP_VARIANTS else (0.0, 0.0)
     cfg = base.replace(action=dataclasses.replace(base.action, **VARIANTS[name]),
-                       dit=dataclasses.replace(base.dit, camera_warp=warp))
+                       dit=dataclasses.replace(base.dit, camera_warp=warp, walk_warp=0.0))  # a turning task
     dit = WorldDiT(cfg, rngs=nnx.Rngs(seed))
     tx = make_optimizer(lr)
     graphdef, state = TrainState.create(dit, tx, rng=seed)

@@ -129,13 +129,14 @@ def with_action_conditioning(model: str | Path, dest: str | Path, mouse_input_ga
 
 def official_dit(model: str | Path, dest: str | Path, seed: int = 0) -> Path:
     """Write ``model``'s VAE and image encoder, unchanged, with a freshly initialised DiT (``seed``) in the
-    official layout to ``dest``: our DiT options at their official values (``DiTConfig.camera_warp`` off,
+    official layout to ``dest``: our DiT options at their official values (``DiTConfig.camera_warp`` and
+    ``walk_warp`` off,
     ``ActionConfig.mouse_input_gain`` 1), every size as ``model``'s. Trained through the DiT stages with the
     same steps and data as ``model``'s DiT, it is the control that measures those options (docs/training.md,
     "The control row")."""
     base = WorldModel.load(model_directory(model))
     old = base.config
-    cfg = old.replace(dit=dataclasses.replace(old.dit, camera_warp=(0.0, 0.0)),
+    cfg = old.replace(dit=dataclasses.replace(old.dit, camera_warp=(0.0, 0.0), walk_warp=0.0),
                       action=dataclasses.replace(old.action, mouse_input_gain=1.0))
     fresh_dit, _, _ = WorldModel.from_config(cfg, seed=seed).params
     _, vae_state, encoder_state = base.params

@@ -457,11 +457,14 @@ class WorldModelConfig:
         for the partner (2-3 pixels wide far away), the hotbar and block edges (docs/model.md §10.3;
         ``benchmarks/autoencoder_capacity.py``: 21.2 dB against 18.7 for 8x8x16 after the same 150 updates).
         Measured with random weights, dream env B = 1 on 2 CPU cores: 0.93x ``tiny``'s steps/s (d = 384: 0.56x,
-        patch 2 with 64 tokens: 0.28x). The camera warp's latent pixels per degree double with the grid."""
+        patch 2 with 64 tokens: 0.28x). The camera warp's latent pixels per degree double with the grid. The walk warp
+        (0.1 eye heights per tick, the best fit on the engine's walking frames) gives a model trained from scratch
+        the walk as an input (docs/model.md §8.1; session 31: fine-tuned with it, the shipped weights zoomed in
+        when walking forward and followed back and strafe right, which they ignored without it)."""
         base = cls.tiny()
         kw = dict(
             name="tiny16",
-            dit=dataclasses.replace(base.dit, patch_size=(1, 4, 4), camera_warp=(0.1996, 0.1122)),
+            dit=dataclasses.replace(base.dit, patch_size=(1, 4, 4), camera_warp=(0.1996, 0.1122), walk_warp=0.1),
             vae=dataclasses.replace(base.vae, dim_mult=(1, 2, 4), temporal_downsample=(True, True),
                                     decoder_head_upscale=1),
         )

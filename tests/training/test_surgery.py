@@ -16,16 +16,16 @@ def _leaves(state):
 
 def test_official_dit_keeps_the_autoencoder_and_starts_a_fresh_official_dit(tmp_path):
     base = preset("test")
-    ours = base.replace(dit=dataclasses.replace(base.dit, camera_warp=(0.1, 0.06)),
+    ours = base.replace(dit=dataclasses.replace(base.dit, camera_warp=(0.1, 0.06), walk_warp=0.1),
                         action=dataclasses.replace(base.action, mouse_input_gain=10.0))
     WorldModel.from_config(ours, seed=3).save(tmp_path / "ours")
 
     assert cli.main(["official-dit", str(tmp_path / "ours"), "--out", str(tmp_path / "control"), "--seed", "5"]) == 0
     src, control = WorldModel.load(tmp_path / "ours"), WorldModel.load(tmp_path / "control")
     cfg = control.config
-    assert cfg.dit.camera_warp == (0.0, 0.0) and not cfg.dit.camera_warp_enabled
+    assert cfg.dit.camera_warp == (0.0, 0.0) and not cfg.dit.camera_warp_enabled and cfg.dit.walk_warp == 0.0
     assert cfg.action.mouse_input_gain == 1.0
-    # every other field is the source's: only our two options changed
+    # every other field is the source's: only our options changed
     assert cfg.replace(dit=ours.dit, action=ours.action) == src.config
     # the autoencoder and the image encoder are the source's, bit for bit
     for mine, theirs in zip(control.params[1:], src.params[1:]):
