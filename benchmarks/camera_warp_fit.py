@@ -242,26 +242,21 @@ def run(model, data_dir: str | Path, segments: int, steps: int) -> dict:
             "walk_warp": walk, "walking": walking}
 
 
+def _line(name: str, space: str, span: str, row: dict, no_key: str, best_key: str) -> str:
+    return (f"{name:8s} {space:7s} {span:10s} {row['frames']:6d} {row[no_key]:12.4f} {row['mse_configured']:15.4f} "
+            f"{row[best_key]:7.3f} {row['mse_best']:10.4f}  {row['configured_helps']}")
+
+
 def table(result: dict) -> str:
-    lines = ["axis   space    turn deg  frames  mse no warp  mse configured  best s   mse best  configured helps"]
+    lines = ["axis     space    turn deg   frames  mse no warp  mse configured  best s   mse best  configured helps"]
     for name, space in (("latents", "latent"), ("frames", "frame")):
         for axis, a in result[name].items():
-            for row in a["bins"]:
-                if row["frames"] == 0:
-                    continue
-                lo, hi = row["turn_deg"]
-                lines.append(f"{axis:6s} {space:7s} {lo:4.0f}-{hi:<4.0f} {row['frames']:7d} {row['mse_no_warp']:12.4f} "
-                             f"{row['mse_configured']:15.4f} {row['best_per_degree']:7.3f} {row['mse_best']:10.4f}  "
-                             f"{row['configured_helps']}")
-    lines.append("walk     space    ticks    frames  mse no walk  mse configured  best s   mse best  configured helps")
+            lines += [_line(axis, space, "{:.0f}-{:.0f}".format(*row["turn_deg"]), row, "mse_no_warp", "best_per_degree")
+                      for row in a["bins"] if row["frames"]]
+    lines.append("walk     space    ticks      frames  mse no walk  mse configured  best s   mse best  configured helps")
     for space in ("latents", "frames"):
-        for row in result["walking"][space]:
-            if row["frames"] == 0:
-                continue
-            lo, hi = row["ticks"]
-            lines.append(f"{row['walk']:8s} {space[:-1]:7s} {lo:4.1f}-{hi:<4.1f} {row['frames']:6d} "
-                         f"{row['mse_no_walk']:12.4f} {row['mse_configured']:15.4f} {row['best_per_tick']:7.3f} "
-                         f"{row['mse_best']:10.4f}  {row['configured_helps']}")
+        lines += [_line(row["walk"], space[:-1], "{:.1f}-{:.1f}".format(*row["ticks"]), row, "mse_no_walk",
+                        "best_per_tick") for row in result["walking"][space] if row["frames"]]
     lines.append("engine walks (grey frames, top speed): " + ", ".join(
         f"{r['key']} best {r['best_per_tick']} (mse {r['mse_no_walk']} -> {r['mse_best']}, {r['frames']} frames)"
         for r in result["walking"]["engine"]))
