@@ -11,8 +11,9 @@ Each stage reads the previous stage's ``OUT/<stage>/model`` and resumes from its
 (``--no-resume`` starts over). Per-stage settings live in ``training/configs/<preset>.json``, validated (with
 the defaults of the optional keys) by ``training.stage_config``; ``--steps`` overrides the stage's step count.
 ``all`` keeps within the config's wall-clock budget (``all.time_budget_min``; ``--time-budget-min``) by ending
-stage 3 early when it must (``training.budget``). ``install``, ``with-decoder``, ``action-conditioning`` and
-``official-dit`` rewrite a trained model (``training.surgery``). Heavy imports (jax) happen only inside the commands.
+stage 3 early when it must (``training.budget``). ``install``, ``with-decoder``, ``with-vae``,
+``action-conditioning`` and ``official-dit`` rewrite a trained model (``training.surgery``). Heavy imports (jax)
+happen only inside the commands.
 """
 
 from __future__ import annotations
@@ -105,6 +106,12 @@ def cmd_with_decoder(args) -> int:
     return 0
 
 
+def cmd_with_vae(args) -> int:
+    from training.surgery import with_vae
+    print(f"wrote {with_vae(args.model, args.vae_from, args.out)}")
+    return 0
+
+
 def cmd_action_conditioning(args) -> int:
     from training.surgery import with_action_conditioning
     dest = with_action_conditioning(args.model, args.out, args.mouse_gain, camera_warp=args.camera_warp,
@@ -184,6 +191,14 @@ def build_parser() -> argparse.ArgumentParser:
     w.add_argument("--decoder-from", required=True, help="a vae-decoder/model sharing the model's encoder")
     w.add_argument("--out", required=True, help="the new model directory")
     w.set_defaults(func=cmd_with_decoder)
+    v = sub.add_parser("with-vae", help="a model's DiT and image encoder with another model's whole VAE (a new latent "
+                                        "space of the same shape: then retrain the DiT from it)")
+    v.add_argument("model", help="a model/ directory, or 'default' (the shipped model)")
+    v.add_argument("--vae-from", required=True, help="a model/ directory whose VAE to take (e.g. RUN/vae/model)")
+    v.add_argument("--out", required=True,
+                   help="the new model directory; RUN/mp-bidirectional/model lets `solaris-train mp-causal --out RUN` "
+                        "start from it")
+    v.set_defaults(func=cmd_with_vae)
     g = sub.add_parser("action-conditioning", help="a model under another action conditioning, computing the "
                                                    "same function (then fine-tune it)")
     g.add_argument("model", help="a model/ directory")
@@ -226,7 +241,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _run(args) -> int:
-    if args.command not in ("install", "with-decoder", "action-conditioning", "official-dit"):
+    if args.command not in ("install", "with-decoder", "with-vae", "action-conditioning", "official-dit"):
         from training.distributed import maybe_initialize_distributed
         maybe_initialize_distributed()  # multi-host when JAX_COORDINATOR_ADDRESS / JAX_NUM_PROCESSES are set
     return args.func(args)

@@ -139,9 +139,11 @@ class VAEDecoderStageConfig(StageConfig):
 
 @dataclass(frozen=True, kw_only=True)
 class VAEStageConfig(VAEDecoderStageConfig):
-    """``vae``: the decoder stage's keys and ``stats_clips``, the clips of the latent statistics."""
+    """``vae``: the decoder stage's keys, ``stats_clips``, the clips of the latent statistics, and
+    ``codec_fit_clips``, the clips whose patches fit a ``linear_patch`` codec (``VAEConfig.codec``)."""
 
     stats_clips: int = _field(low=1)
+    codec_fit_clips: int = _field(2048, low=1)
 
 
 @dataclass(frozen=True, kw_only=True)

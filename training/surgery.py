@@ -5,6 +5,8 @@ rebuilt module; none draws data or takes an optimiser step.
 * ``relayout_decoder``: a VAE rebuilt in another decoder layout, warm-started (the ``vae-decoder`` stage);
 * ``with_decoder``: a model given the decoder of a ``vae-decoder`` stage of the same latent space
   (``solaris-train with-decoder``);
+* ``with_vae``: a model's DiT and image encoder with another model's whole VAE, a new latent space of the same
+  shape, to retrain the DiT on (``solaris-train with-vae``);
 * ``with_action_conditioning``: a model under another action conditioning computing the same function
   (``solaris-train action-conditioning``);
 * ``official_dit``: a model's autoencoder and image encoder under a freshly initialised DiT in the official
@@ -85,6 +87,23 @@ def with_decoder(model: str | Path, decoder_from: str | Path, dest: str | Path) 
     if stats(base.config) != stats(donor.config) or base.config.vae.with_decoder_layout(donor.config.vae) != donor.config.vae:
         raise ValueError(f"{decoder_from}: VAE config / latent statistics differ from {model}'s")
     WorldModel(base.config.replace(vae=donor.config.vae), dit, donor_vae, encoder).save(dest)
+    return Path(dest)
+
+
+def with_vae(model: str | Path, vae_from: str | Path, dest: str | Path) -> Path:
+    """Write ``model``'s DiT and image encoder with the whole VAE of ``vae_from`` (its weights, layout and
+    latent statistics) to ``dest``. The latents must have the same shape (channels, grid, frames per latent)
+    over the same frames, so the DiT runs on them unchanged; their meaning changes, so the DiT is then
+    retrained on them (stage 3 from ``dest``): its action module and attention keep what they learned."""
+    base = WorldModel.load(model_directory(model))
+    donor = WorldModel.load(model_directory(vae_from, "--vae-from"))
+    shape = lambda c: {"latent_channels": c.latent_channels, "latent_grid": (c.latent_height, c.latent_width),
+                       "frames_per_latent": c.frames_per_step, "frame": (c.frame_height, c.frame_width)}
+    if shape(base.config) != shape(donor.config):
+        raise ValueError(f"--vae-from {vae_from}: its latents {shape(donor.config)} differ from {model}'s "
+                         f"{shape(base.config)}; the DiT needs the same latent shape")
+    (dit, _, encoder), (_, vae, _) = base.modules(), donor.modules()
+    WorldModel(base.config.replace(vae=donor.config.vae), dit, vae, encoder).save(dest)
     return Path(dest)
 
 

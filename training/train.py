@@ -229,15 +229,19 @@ def train_vae(out: str | Path, data_dir: str | Path, preset_name: str, sc: VAESt
     from training.samples import write_json, write_png
 
     out, data_dir = Path(out), Path(data_dir)
-    steps = steps or sc.steps
+    steps = sc.steps if steps is None else steps  # 0: a linear patch codec as fitted
     cfg = make_preset(preset_name)
     cfg = cfg.replace(vae=dataclasses.replace(cfg.vae, latent_mean=(), latent_std=()))
     model = WorldModel.from_config(cfg, seed=seed)
     _, vae, _ = model.modules()
+    sampler, draw, batch_size = single_player_clips(data_dir, cfg, sc, seed)
+    if cfg.vae.codec == "linear_patch":  # fitted in closed form; --steps 0 keeps the fit (a resumed run loads
+        draws = max(1, sc.codec_fit_clips // (batch_size * cfg.num_players))  # its checkpoint over it)
+        fit = V.fit_linear_patch_codec(vae, (np.asarray(draw()) for _ in range(draws)))
+        _log_json(stage_dir(out, "vae") / "codec_fit.jsonl", fit)
     tx = make_optimizer(sc.lr)
     graphdef, state = TrainState.create(vae, tx, rng=seed)
     step_fn = V.make_vae_train_step(graphdef, tx, V.VAELossWeights())
-    sampler, draw, batch_size = single_player_clips(data_dir, cfg, sc, seed)
     test_clips = _fixed_clips(data_dir, cfg, sc.num_frames, sc.eval_clips, seed)
     reconstruct = V.make_reconstruct(graphdef)
     samples = stage_dir(out, "vae") / "samples"
@@ -289,6 +293,9 @@ def train_vae_decoder(out: str | Path, data_dir: str | Path, preset_name: str, s
     out, data_dir = Path(out), Path(data_dir)
     steps = steps or sc.steps
     cfg, (dit, vae, encoder) = load_stage_model(out, "vae")
+    if cfg.vae.codec != "wan":
+        raise ValueError(f"the vae-decoder stage fine-tunes a convolutional decoder; {model_dir(out, 'vae')} is a "
+                         f"{cfg.vae.codec!r} codec (VAEConfig.codec), which has none: skip this stage")
     target = cfg.vae.with_decoder_layout(make_preset(preset_name).vae)
     if target != cfg.vae:
         vae, copied = relayout_decoder(vae, target, seed)

@@ -60,6 +60,39 @@ def vae_loss(vae: CausalVideoVAE, video_BTHWC: jax.Array, key: jax.Array, weight
     return loss, {"mse": mse, "l1": l1, "kl": kl}
 
 
+def fit_linear_patch_codec(vae: CausalVideoVAE, clips_uint8) -> dict:
+    """Fit a linear patch codec (``VAEConfig.codec = "linear_patch"``) to clips: the z_dim leading principal
+    components of their (tf, sf, sf, 3) patches in [-1, 1] (``vae.patchify``; a clip is a stream start, T = 1 +
+    tf * n). Encoder: mu = V^T (p - m); decoder: p = V mu + m, the best linear codec of that latent size in
+    mean squared error (docs/model.md §7.1, "Linear patch codec"). ``clips_uint8``: an iterable of
+    (B, T, H, W, 3) uint8 arrays. -> the fit's facts."""
+    from solaris_env.world_model.vae import patchify
+
+    cfg = vae.cfg
+    if cfg.codec != "linear_patch":
+        raise ValueError(f"fit_linear_patch_codec: the VAE's codec is {cfg.codec!r}, expected 'linear_patch'")
+    tf, sf, z = cfg.temporal_factor, cfg.spatial_factor, cfg.z_dim
+    d = tf * sf * sf * 3
+    second, first, n = np.zeros((d, d)), np.zeros(d), 0
+    for clip in clips_uint8:
+        p = np.asarray(patchify(frames_to_model(jnp.asarray(clip)), tf, sf, True), np.float64).reshape(-1, d)
+        second += p.T @ p
+        first += p.sum(0)
+        n += len(p)
+    if n <= d:
+        raise ValueError(f"fit_linear_patch_codec: {n} patches for a {d}-dimensional fit; give more clips")
+    mean = first / n
+    eigval, eigvec = np.linalg.eigh(second / n - np.outer(mean, mean))
+    eigval, eigvec = eigval[::-1], eigvec[:, ::-1][:, :z]  # descending
+    dtype = vae.patch_in.kernel[...].dtype
+    vae.patch_in.kernel[...] = jnp.asarray(eigvec, dtype)
+    vae.patch_in.bias[...] = jnp.asarray(-mean @ eigvec, dtype)
+    vae.patch_out.kernel[...] = jnp.asarray(eigvec.T, dtype)
+    vae.patch_out.bias[...] = jnp.asarray(mean, dtype)
+    return {"patches": int(n), "variance_kept": float(eigval[:z].sum() / eigval.sum()),
+            "component_std": [round(float(v), 4) for v in np.sqrt(np.maximum(eigval[:z], 0.0))]}
+
+
 def make_vae_train_step(graphdef: nnx.GraphDef, tx: optax.GradientTransformation, weights: VAELossWeights):
     """-> jitted ``step(state, video_BTHWC uint8) -> (state, metrics)``, state donated."""
 

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 
 MULTIPLAYER_METHODS = ("attn", "concat")
 COND_ENCODINGS = ("video", "image")
+VAE_CODECS = ("wan", "linear_patch")
 
 
 def _require(cond: bool, msg: str) -> None:
@@ -167,6 +168,11 @@ class VAEConfig:
     # per start for solaris); "image" = only latent 0 carries the first frame's encoding, later
     # conditioning latents are 0 (one frame encoded per start: cheap resets and cacheable training data).
     cond_encoding: str = "video"
+    # "wan": the causal convolutional VAE (Wan2.1, solaris). "linear_patch": a linear codec, no convolutions:
+    # each latent position's (tf x sf x sf x 3) pixel patch <-> z_dim numbers by one matrix each way, fitted to
+    # the patches' principal components by the VAE stage (docs/model.md §7.1, "Linear patch codec"); the
+    # factors still come from dim_mult / temporal_downsample, the other layout fields are unused.
+    codec: str = "wan"
     # Per-channel latent normalisation z = (mu - mean) / std; empty = identity (set after training).
     latent_mean: tuple[float, ...] = ()
     latent_std: tuple[float, ...] = ()
@@ -179,6 +185,7 @@ class VAEConfig:
                  f"{len(self.dim_mult) - 1}")
         _require(len(self.latent_mean) in (0, self.z_dim) and len(self.latent_std) == len(self.latent_mean),
                  f"latent_mean/std must both be empty or have z_dim={self.z_dim} entries")
+        _require(self.codec in VAE_CODECS, f"codec must be one of {VAE_CODECS}, got {self.codec!r}")
         _require(self.cond_encoding in COND_ENCODINGS,
                  f"cond_encoding must be one of {COND_ENCODINGS}, got {self.cond_encoding!r}")
         _require(self.decoder_base_dim >= 0, f"decoder_base_dim must be >= 0 (0 = base_dim), got {self.decoder_base_dim}")
@@ -466,7 +473,7 @@ class WorldModelConfig:
             name="tiny16",
             dit=dataclasses.replace(base.dit, patch_size=(1, 4, 4), camera_warp=(0.1996, 0.1122), walk_warp=0.1),
             vae=dataclasses.replace(base.vae, dim_mult=(1, 2, 4), temporal_downsample=(True, True),
-                                    decoder_head_upscale=1),
+                                    decoder_head_upscale=1, codec="linear_patch"),
         )
         return base.replace(**{**kw, **override})
 

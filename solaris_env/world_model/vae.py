@@ -1,4 +1,6 @@
-"""Wan2.1-style causal video VAE (docs/model.md §7.1).
+"""Wan2.1-style causal video VAE (docs/model.md §7.1), or in its place a linear patch codec
+(``VAEConfig.codec = "linear_patch"``: one matrix each way between a latent position's pixel patch and its
+latent numbers, no convolutions, no temporal cache; docs/model.md §7.1, "Linear patch codec").
 
 Video ``x_BTHWC`` in [-1, 1] with T = 1 + tf * (F - 1) frames <-> latents ``z_BFhwc`` with
 h = H / sf, w = W / sf (tf = ``cfg.temporal_factor``, sf = ``cfg.spatial_factor``; 4 and 8 for solaris).
@@ -78,6 +80,37 @@ def kl_divergence(mu_BFhwc: jax.Array, logvar_BFhwc: jax.Array) -> jax.Array:
     logvar = jnp.clip(logvar_BFhwc, *_LOGVAR_RANGE)
     kl = 0.5 * (jnp.square(mu_BFhwc) + jnp.exp(logvar) - 1.0 - logvar)
     return kl.reshape(kl.shape[0], -1).sum(-1)
+
+
+# ---------------------------------------------------------------------------------------------
+# The linear patch codec's layout (VAEConfig.codec = "linear_patch", docs/model.md §7.1, "Linear patch codec")
+# ---------------------------------------------------------------------------------------------
+
+
+def patchify(video_BTHWC: jax.Array, tf: int, sf: int, first: bool) -> jax.Array:
+    """Video -> one (tf, sf, sf, 3) pixel patch per latent position, flattened: (B, F, H/sf, W/sf, tf*sf*sf*3),
+    entry order (t, dy, dx, rgb). ``first``: the video starts a stream (T = 1 + tf * (F - 1)); its frame 0 is
+    repeated tf times, so the first latent's patch is that of a chunk in which nothing moves. Otherwise
+    T = tf * F."""
+    B, T, H, W, C = video_BTHWC.shape
+    if first:
+        video_BTHWC = jnp.concatenate([jnp.repeat(video_BTHWC[:, :1], tf, axis=1), video_BTHWC[:, 1:]], axis=1)
+    F = video_BTHWC.shape[1] // tf
+    assert F * tf == video_BTHWC.shape[1] and H % sf == 0 and W % sf == 0, \
+        f"patchify: video (T, H, W)={T, H, W} does not split into {tf}x{sf}x{sf} patches (first={first})"
+    x = video_BTHWC.reshape(B, F, tf, H // sf, sf, W // sf, sf, C).transpose(0, 1, 3, 5, 2, 4, 6, 7)
+    return x.reshape(B, F, H // sf, W // sf, tf * sf * sf * C)
+
+
+def unpatchify(patches_BFhwD: jax.Array, tf: int, sf: int, first: bool) -> jax.Array:
+    """The inverse of ``patchify``: (B, F, h, w, tf*sf*sf*3) -> video (B, T, h*sf, w*sf, 3). ``first``: the
+    first latent gives one frame, the mean of its patch's tf frames (T = 1 + tf * (F - 1))."""
+    B, F, h, w, D = patches_BFhwD.shape
+    x = patches_BFhwD.reshape(B, F, h, w, tf, sf, sf, D // (tf * sf * sf)).transpose(0, 1, 4, 2, 5, 3, 6, 7)
+    video = x.reshape(B, F * tf, h * sf, w * sf, -1)
+    if first:
+        video = jnp.concatenate([jnp.mean(video[:, :tf], axis=1, keepdims=True), video[:, tf:]], axis=1)
+    return video
 
 
 # ---------------------------------------------------------------------------------------------
@@ -342,6 +375,12 @@ class CausalVideoVAE(nnx.Module):
     def __init__(self, cfg: VAEConfig, *, rngs: nnx.Rngs):
         kw = dict(dtype=jnp.dtype(cfg.dtype), param_dtype=jnp.dtype(cfg.param_dtype), rngs=rngs)
         self.cfg = cfg
+        if cfg.codec == "linear_patch":
+            # patch <-> latent, one matrix each way (training.vae.fit_linear_patch_codec sets them)
+            d = cfg.temporal_factor * cfg.spatial_factor ** 2 * 3
+            self.patch_in = nnx.Linear(d, cfg.z_dim, **kw)
+            self.patch_out = nnx.Linear(cfg.z_dim, d, **kw)
+            return
         self.encoder = Encoder(cfg, rngs=rngs)
         self.conv1 = CausalConv3d(2 * cfg.z_dim, 2 * cfg.z_dim, (1, 1, 1), **kw)  # moments (mu, logvar)
         # the logvar half starts at LOGVAR_INIT everywhere (weights 0): a near-deterministic posterior from the
@@ -360,6 +399,10 @@ class CausalVideoVAE(nnx.Module):
 
     def _moments(self, video_BTHWC: jax.Array, cache: Cache) -> tuple[jax.Array, jax.Array, Cache]:
         self._check_video(video_BTHWC, first=cache is None)
+        if self.cfg.codec == "linear_patch":  # no history: the cache only marks "after the stream's start"
+            patches = patchify(video_BTHWC, self.cfg.temporal_factor, self.cfg.spatial_factor, first=cache is None)
+            mu = self.patch_in(patches).astype(jnp.float32)
+            return mu, jnp.full_like(mu, LOGVAR_INIT), ()
         h, cache = self.encoder(video_BTHWC, cache)
         mu, logvar = jnp.split(self.conv1(h, None)[0].astype(jnp.float32), 2, axis=-1)
         return mu, logvar, cache
@@ -393,6 +436,9 @@ class CausalVideoVAE(nnx.Module):
 
     # -- decoding ----------------------------------------------------------------------------------
     def _decode_raw(self, latent_BFhwc: jax.Array, cache: Cache) -> tuple[jax.Array, Cache]:
+        if self.cfg.codec == "linear_patch":
+            patches = self.patch_out(latent_BFhwc)
+            return unpatchify(patches, self.cfg.temporal_factor, self.cfg.spatial_factor, first=cache is None), ()
         x, _ = self.conv2(latent_BFhwc, None)
         return self.decoder(x, cache)
 

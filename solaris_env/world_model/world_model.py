@@ -97,8 +97,11 @@ def encoder_receptive_field(vae: VAEConfig) -> int:
 
     Mirrors the layer stack of ``vae.Encoder``: every causal time convolution has 3 taps (2 frames of
     history) at the current temporal stride; ResBlocks have two; a temporal downsample adds its own
-    3-tap conv and doubles the stride. Sum of history * stride over the stack.
+    3-tap conv and doubles the stride. Sum of history * stride over the stack. A linear patch codec sees
+    only the frames of its own latent.
     """
+    if vae.codec == "linear_patch":
+        return vae.temporal_factor - 1
     history, stride = 2, 1
     rf = history  # conv_in
     for i in range(len(vae.dim_mult)):

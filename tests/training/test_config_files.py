@@ -42,19 +42,9 @@ def test_tiny16_trains_like_tiny():
     assert tiny16.preset == "tiny16" and dataclasses.replace(tiny16, preset="tiny") == tiny
     sprint = SprintConfig.load("tiny16")
     assert (sprint.preset, sprint.stage_config) == ("tiny16", "tiny16")
-    assert sprint.fractions["vae"] > SprintConfig.load("tiny").fractions["vae"]  # the 4x latent needs more updates
+    # tiny16's VAE is a linear patch codec, fitted in closed form: almost all of the time goes to stage 3
+    assert sprint.fractions["vae"] < 0.1 and sprint.fractions["mp-causal"] > 0.9
+    assert {s for s, share in sprint.fractions_from_init.items() if share > 0} == {"mp-causal"}
     tiny_devices = SprintConfig.load("tiny").devices
     assert sprint.devices["cpu"] == tiny_devices["cpu"]
-    # on the GPU the VAE trains on clips longer than the encoder's 76-frame reach (docs/training.md), so no
-    # decoder stage follows
-    gpu, tiny_gpu = sprint.devices["gpu"], tiny_devices["gpu"]
-    assert gpu.stages["vae"] == {"batch_size": 8, "num_frames": 81} and sprint.fractions["vae-decoder"] == 0
-    assert {k: v for k, v in gpu.stages.items() if k != "vae"} == {k: v for k, v in tiny_gpu.stages.items() if k != "vae"}
-
-
-def test_the_tiny16_vae_sprint_trains_the_vae_alone():
-    """The first of a GPU session's two calls (docs/training.md): the VAE only, the DiT stages of the second
-    call continue it with ``--init``."""
-    vae_only, full = SprintConfig.load("tiny16-vae"), SprintConfig.load("tiny16")
-    assert {stage for stage, share in vae_only.fractions.items() if share > 0} == {"vae"}
-    assert dataclasses.replace(vae_only, fractions=full.fractions) == full
+    assert sprint.devices["gpu"].stages == tiny_devices["gpu"].stages

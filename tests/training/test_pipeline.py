@@ -280,3 +280,31 @@ def test_all_keeps_within_its_time_budget(run, data, tmp_path, monkeypatch):
     assert clock["stages"]["mp-causal_steps"] == 1
     assert clock["spent_s"] >= clock["stages"]["mp-causal_s"] + clock["stages"]["self-forcing_s"] > 0
     assert "vae_s" not in clock["stages"]  # skipped stages cost nothing
+
+
+def test_the_vae_stage_fits_a_linear_patch_codec_and_steps_0_keeps_the_fit(data, tmp_path, monkeypatch):
+    """A ``linear_patch`` codec (VAEConfig.codec) is fitted to the data's patches before any update; ``--steps
+    0`` writes that fit with its latent statistics, and it reconstructs the held-out clips far better than
+    the codec's random start; the vae-decoder stage refuses it by name."""
+    import dataclasses
+
+    from solaris_env.world_model import config as config_module
+    from solaris_env.world_model.world_model import WorldModel
+    from training import train as train_module
+    from training.stage_config import load_stage_config
+
+    def codec_preset(name, **override):
+        cfg = config_module.preset(name, **override)
+        return cfg.replace(vae=dataclasses.replace(cfg.vae, codec="linear_patch"))
+
+    monkeypatch.setattr(train_module, "make_preset", codec_preset)
+    sc = load_stage_config("test").stages["vae"]
+    path = train_module.train_vae(tmp_path, data, "test", sc, steps=0)
+    fit = json.loads((tmp_path / "vae" / "codec_fit.jsonl").read_text().splitlines()[0])
+    assert fit["patches"] > 192 and 0.5 < fit["variance_kept"] < 1
+    summary = json.loads((tmp_path / "vae" / "summary.json").read_text())
+    assert summary["steps"] == 0 and len(summary["latent_std"]) == 4 and summary["test_psnr_db"] > 20
+    model = WorldModel.load(path)
+    assert model.config.vae.codec == "linear_patch" and model.config.vae.latent_std == tuple(summary["latent_std"])
+    with pytest.raises(ValueError, match="'linear_patch' codec"):
+        train_module.train_vae_decoder(tmp_path, data, "test", load_stage_config("test").stages["vae-decoder"])

@@ -248,8 +248,8 @@ def test_install_writes_the_action_guidance_into_the_shipped_sampler(test_model,
 
 @pytest.mark.slow
 def test_a_vae_sprint_from_scratch_records_its_first_step_speed_and_held_out_psnr(tiny_duet, tmp_path):
-    """The first call of a GPU session (``sprint-tiny16-vae.json``, docs/training.md) on the test preset: the
-    VAE alone, from scratch; its lineage says when the first step ended, the speed, and the held-out PSNR."""
+    """A sprint of the VAE alone, from scratch, on the test preset: its lineage says when the first step ended,
+    the speed, and the held-out PSNR."""
     from training.config_files import read_json_config
     from training.sprint import CONFIG_DIR
 

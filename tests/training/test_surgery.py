@@ -1,4 +1,5 @@
-"""``training.surgery.official_dit`` (``solaris-train official-dit``): the start of issue 23's control row."""
+"""``training.surgery``: ``official_dit`` (``solaris-train official-dit``: the start of issue 23's control row) and
+``with_vae`` (``solaris-train with-vae``)."""
 
 import dataclasses
 
@@ -44,3 +45,24 @@ def test_official_dit_names_a_missing_model(tmp_path):
 
     with pytest.raises(FileNotFoundError, match="holds no model"):
         official_dit(tmp_path / "nothing", tmp_path / "control")
+
+
+def test_with_vae_takes_the_whole_vae_and_keeps_the_dit_and_image_encoder(tmp_path):
+    import pytest
+
+    base = preset("test")
+    codec = base.replace(vae=dataclasses.replace(base.vae, codec="linear_patch", latent_mean=(0.5,) * 4,
+                                                 latent_std=(2.0,) * 4))
+    WorldModel.from_config(base, seed=1).save(tmp_path / "model")
+    WorldModel.from_config(codec, seed=2).save(tmp_path / "codec")
+    assert cli.main(["with-vae", str(tmp_path / "model"), "--vae-from", str(tmp_path / "codec"),
+                     "--out", str(tmp_path / "new")]) == 0
+    src, donor, new = (WorldModel.load(tmp_path / name) for name in ("model", "codec", "new"))
+    assert new.config == src.config.replace(vae=donor.config.vae)  # the donor's layout and latent statistics
+    for got, want in [(new.params[0], src.params[0]), (new.params[1], donor.params[1]), (new.params[2], src.params[2])]:
+        assert all(np.array_equal(a, b) for a, b in zip(_leaves(got), _leaves(want)))
+    # the DiT needs latents of its own shape
+    other = base.replace(vae=dataclasses.replace(base.vae, z_dim=8))
+    WorldModel.from_config(other, seed=2).save(tmp_path / "z8")
+    with pytest.raises(SystemExit, match="the DiT needs the same latent shape"):
+        cli.main(["with-vae", str(tmp_path / "model"), "--vae-from", str(tmp_path / "z8"), "--out", str(tmp_path / "x")])

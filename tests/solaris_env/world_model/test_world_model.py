@@ -433,3 +433,19 @@ def test_parameter_layouts_on_the_host_give_the_same_model_on_the_default_device
     assert not any(leaf.committed for leaf in got + step_leaves)
     key = jax.random.key(0)  # typed keys keep their type through the move
     assert jax.dtypes.issubdtype(wm._to_default_device(key).dtype, jax.dtypes.prng_key)
+
+
+def test_a_linear_patch_codec_streams_resets_and_conditions_like_the_reference():
+    """The world model on a linear patch codec (VAEConfig.codec, the tiny16 layout's): its empty decoder cache
+    streams, resets per world and batches like the convolutional VAE's, and its conditioning is steady from
+    latent 1 (a latent sees only its own 4 frames)."""
+    cfg = WorldModelConfig.test()
+    codec = random_model(cfg.replace(vae=dataclasses.replace(cfg.vae, codec="linear_patch")), seed=3)
+    assert codec.cond_frames == 2
+    rollout = stream_rollout(codec)
+    reference = offline_rollout(codec, rollout)
+    test_streaming_step_equals_offline_rollout(rollout, reference)
+    table, full = rollout["cond_table"], reference["cond"]
+    np.testing.assert_allclose(table, full[:, :, :2], atol=1e-5)
+    np.testing.assert_allclose(full[:, :, 2:], np.broadcast_to(table[:, :, 1:2], full[:, :, 2:].shape), atol=1e-5)
+    test_reset_worlds_changes_only_masked_worlds_without_recompiling(codec)

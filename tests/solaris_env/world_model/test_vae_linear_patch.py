@@ -1,0 +1,133 @@
+"""The linear patch codec (VAEConfig.codec = "linear_patch", docs/model.md §7.1, "Linear patch codec"): the patch
+layout, the codec's maps, streaming == cacheless, the world model's conditioning, and the principal-component fit."""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from flax import nnx
+
+from solaris_env.world_model.config import VAEConfig, WorldModelConfig
+from solaris_env.world_model.vae import CausalVideoVAE, patchify, unpatchify
+from solaris_env.world_model.world_model import encoder_receptive_field, steady_cond_index
+from training.vae import fit_linear_patch_codec
+
+CFG = dataclasses.replace(WorldModelConfig.test().vae, codec="linear_patch")  # 32x32 -> 4x4x4, x8 space, x4 time
+TF, SF = CFG.temporal_factor, CFG.spatial_factor
+
+
+def rngs(seed: int = 0) -> nnx.Rngs:
+    return nnx.Rngs(jax.random.key(seed, impl="rbg"))
+
+
+@pytest.fixture(scope="module")
+def vae():
+    return CausalVideoVAE(CFG, rngs=rngs())
+
+
+@pytest.fixture(scope="module")
+def video():
+    return jax.random.uniform(jax.random.key(1), (2, 9, 32, 32, 3), minval=-1, maxval=1)
+
+
+def test_patchify_layout_and_round_trip():
+    x = jnp.arange(1 * 8 * 4 * 4 * 3, dtype=jnp.float32).reshape(1, 8, 4, 4, 3)
+    p = patchify(x, 4, 2, first=False)
+    assert p.shape == (1, 2, 2, 2, 4 * 2 * 2 * 3)
+    # entry (t, dy, dx, c) of the patch at latent (f, i, j) is pixel (4f + t, 2i + dy, 2j + dx, c)
+    for f, i, j, t, dy, dx, c in [(0, 0, 0, 0, 0, 0, 0), (1, 1, 0, 3, 1, 1, 2), (1, 0, 1, 2, 0, 1, 1)]:
+        assert p[0, f, i, j, ((t * 2 + dy) * 2 + dx) * 3 + c] == x[0, 4 * f + t, 2 * i + dy, 2 * j + dx, c]
+    np.testing.assert_array_equal(unpatchify(p, 4, 2, first=False), x)
+
+
+def test_a_stream_start_repeats_frame_zero_and_decodes_to_the_mean():
+    x = jax.random.normal(jax.random.key(0), (2, 9, 8, 8, 3))
+    p = patchify(x, 4, 2, first=True)
+    assert p.shape == (2, 3, 4, 4, 48)
+    np.testing.assert_array_equal(unpatchify(p, 4, 2, first=True), x)  # frame 0 repeated: its mean is itself
+    np.testing.assert_array_equal(p[:, 0], patchify(jnp.repeat(x[:, :1], 4, axis=1), 4, 2, first=False)[:, 0])
+    chunk = jnp.concatenate([jnp.zeros((1, 3, 8, 8, 3)), jnp.ones((1, 1, 8, 8, 3))], axis=1)
+    np.testing.assert_allclose(unpatchify(patchify(chunk, 4, 2, False), 4, 2, True), jnp.full((1, 1, 8, 8, 3), 0.25))
+
+
+def test_patchify_rejects_a_video_that_does_not_split():
+    with pytest.raises(AssertionError, match="does not split"):
+        patchify(jnp.zeros((1, 6, 8, 8, 3)), 4, 2, first=True)
+
+
+def test_the_codec_is_one_linear_map_each_way(vae, video):
+    mu, logvar = vae.encode_moments(video)
+    np.testing.assert_allclose(mu, vae.patch_in(patchify(video, TF, SF, True)), atol=1e-6)
+    np.testing.assert_allclose(vae.decode_raw(mu), unpatchify(vae.patch_out(mu), TF, SF, True), atol=1e-6)
+    np.testing.assert_allclose(logvar, -8.0)
+    names = {"/".join(map(str, path)) for path, _ in nnx.to_flat_state(nnx.state(vae, nnx.Param))}
+    assert names == {"patch_in/kernel", "patch_in/bias", "patch_out/kernel", "patch_out/bias"}
+
+
+def test_the_official_layout_is_wan_and_tiny16_is_the_codec():
+    assert WorldModelConfig.solaris().vae.codec == "wan" and WorldModelConfig.tiny16().vae.codec == "linear_patch"
+    with pytest.raises(ValueError, match="codec must be one of"):
+        dataclasses.replace(CFG, codec="pca")
+
+
+def test_streaming_equals_cacheless(vae, video):
+    mu = vae.encode(video)
+    m0, cache = vae.encode_chunked(video[:, :5])
+    m1, _ = vae.encode_chunked(video[:, 5:], cache)
+    np.testing.assert_allclose(jnp.concatenate([m0, m1], 1), mu, atol=1e-6)
+    full = vae.decode(mu)
+    parts, cache = [], None
+    for f in range(mu.shape[1]):
+        out, cache = vae.decode_step(mu[:, f:f + 1], cache)
+        parts.append(out)
+    assert [p.shape[1] for p in parts] == [1, TF, TF]
+    np.testing.assert_allclose(jnp.concatenate(parts, 1), full, atol=1e-6)
+
+
+def test_a_latent_sees_only_its_own_frames(vae, video):
+    """Changing frame t changes only the latent whose chunk holds it, and the conditioning is steady from
+    latent 1 (its chunk is all gray)."""
+    mu = vae.encode(video)
+    changed = vae.encode(video.at[:, 3].set(0.5))
+    diff = np.abs(np.asarray(changed - mu)).reshape(2, 3, -1).max(-1).max(0)
+    assert diff[0] == 0 and diff[1] > 0 and diff[2] == 0  # frame 3 is in latent 1 (frames 1-4)
+    assert encoder_receptive_field(CFG) == TF - 1 and steady_cond_index(CFG) == 1
+
+
+# x2 space, x2 time: 24-dimensional patches, 4 latent channels
+FIT = VAEConfig(base_dim=8, z_dim=4, dim_mult=(1, 2), num_res_blocks=1, temporal_downsample=(True,),
+                middle_attention=False, codec="linear_patch")
+
+
+def low_rank_clips(rng, n: int, rank: int) -> np.ndarray:
+    """uint8 (n, 5, 8, 8, 3) still clips whose 2x2x3 pixel patches lie in a ``rank``-dimensional affine space."""
+    basis = np.linalg.qr(rng.normal(size=(12, rank)))[0]
+    coeff = rng.normal(size=(n, 4, 4, rank)) * np.linspace(2, 0.5, rank)
+    patches = (0.15 * coeff @ basis.T).reshape(n, 4, 4, 2, 2, 3).transpose(0, 1, 3, 2, 4, 5).reshape(n, 8, 8, 3)
+    frames = np.clip(np.round((patches + 0.1 + 1) * 127.5), 0, 255).astype(np.uint8)
+    return np.repeat(frames[:, None], 5, axis=1)
+
+
+def test_fit_finds_the_principal_components_of_a_low_rank_video():
+    """Clips whose patches span z_dim dimensions are reconstructed exactly by the fitted codec; a codec of
+    fewer dimensions keeps the directions of largest variance."""
+    rng = np.random.default_rng(0)
+    clips = low_rank_clips(rng, 16, FIT.z_dim)
+    vae = CausalVideoVAE(FIT, rngs=rngs())
+    fit = fit_linear_patch_codec(vae, [clips[:8], clips[8:]])
+    assert fit["patches"] == 16 * 3 * 16 and fit["variance_kept"] > 0.999
+    x = jnp.asarray(clips, jnp.float32) / 127.5 - 1
+    rec = vae.decode_raw(vae.encode_moments(x)[0])
+    assert float(jnp.max(jnp.abs(rec - x))) < 0.01  # up to the uint8 rounding of the clips
+    vae2 = CausalVideoVAE(dataclasses.replace(FIT, z_dim=2), rngs=rngs())
+    fit2 = fit_linear_patch_codec(vae2, [clips])
+    assert 0.3 < fit2["variance_kept"] < 0.99 and fit2["component_std"][0] > fit2["component_std"][1]
+
+
+def test_fit_needs_the_codec_and_enough_patches():
+    with pytest.raises(ValueError, match="expected 'linear_patch'"):
+        fit_linear_patch_codec(CausalVideoVAE(WorldModelConfig.test().vae, rngs=rngs()), [])
+    with pytest.raises(ValueError, match="more clips"):
+        fit_linear_patch_codec(CausalVideoVAE(FIT, rngs=rngs()), [np.zeros((1, 5, 4, 4, 3), np.uint8)])
