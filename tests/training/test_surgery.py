@@ -65,4 +65,5 @@ def test_with_vae_takes_the_whole_vae_and_keeps_the_dit_and_image_encoder(tmp_pa
     other = base.replace(vae=dataclasses.replace(base.vae, z_dim=8))
     WorldModel.from_config(other, seed=2).save(tmp_path / "z8")
     with pytest.raises(SystemExit, match="the DiT needs the same latent shape"):
-        cli.main(["with-vae", str(tmp_path / "model"), "--vae-from", str(tmp_path / "z8"), "--out", str(tmp_path / "x")])
+        cli.main(["with-vae", str(tmp_path / "model"), "--vae-from", str(tmp_path / "z8"),
+                  "--out", str(tmp_path / "x")])
