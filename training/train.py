@@ -235,8 +235,9 @@ def train_vae(out: str | Path, data_dir: str | Path, preset_name: str, sc: VAESt
     model = WorldModel.from_config(cfg, seed=seed)
     _, vae, _ = model.modules()
     sampler, draw, batch_size = single_player_clips(data_dir, cfg, sc, seed)
-    if cfg.vae.codec == "linear_patch":  # fitted in closed form; --steps 0 keeps the fit (a resumed run loads
-        draws = max(1, sc.codec_fit_clips // (batch_size * cfg.num_players))  # its checkpoint over it)
+    if cfg.vae.codec == "linear_patch":
+        # fitted in closed form; --steps 0 keeps the fit, a resumed run loads its checkpoint over it
+        draws = max(1, sc.codec_fit_clips // (batch_size * cfg.num_players))
         fit = V.fit_linear_patch_codec(vae, (np.asarray(draw()) for _ in range(draws)))
         _log_json(stage_dir(out, "vae") / "codec_fit.jsonl", fit)
     tx = make_optimizer(sc.lr)
