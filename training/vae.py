@@ -35,7 +35,7 @@ import numpy as np
 import optax
 from flax import nnx
 
-from solaris_env.world_model.vae import CausalVideoVAE, kl_divergence, sample_posterior
+from solaris_env.world_model.vae import CausalVideoVAE, kl_divergence, patchify, sample_posterior
 from solaris_env.world_model.world_model import frames_to_model
 from training.step import TrainState, make_optimizer
 
@@ -66,8 +66,6 @@ def fit_linear_patch_codec(vae: CausalVideoVAE, clips_uint8) -> dict:
     tf * n). Encoder: mu = V^T (p - m); decoder: p = V mu + m, the best linear codec of that latent size in
     mean squared error (docs/model.md §7.1, "Linear patch codec"). ``clips_uint8``: an iterable of
     (B, T, H, W, 3) uint8 arrays. -> the fit's facts."""
-    from solaris_env.world_model.vae import patchify
-
     cfg = vae.cfg
     if cfg.codec != "linear_patch":
         raise ValueError(f"fit_linear_patch_codec: the VAE's codec is {cfg.codec!r}, expected 'linear_patch'")

@@ -356,10 +356,8 @@ class Decoder(nnx.Module):
 
     def __call__(self, z_BFhwc: jax.Array, cache: Cache) -> tuple[jax.Array, Cache]:
         x, cache = _run_layers([self.conv_in, *self.middle, *self.up, self.head], z_BFhwc, cache)
-        u = self.upscale
-        if u > 1:  # depth-to-space
-            B, T, H, W, _ = x.shape
-            x = x.reshape(B, T, H, W, u, u, 3).transpose(0, 1, 2, 4, 3, 5, 6).reshape(B, T, H * u, W * u, 3)
+        if self.upscale > 1:  # depth-to-space: one-frame patches of u x u pixels
+            x = unpatchify(x, 1, self.upscale, first=False)
         return x, cache
 
 
