@@ -1,16 +1,17 @@
 """Shared fixtures of the agent tests: small real envs, held-out start states, the test-preset world model.
 
-JAX's persistent compilation cache is opt-in, as in ``tests/solaris_env/conftest.py`` (``SOLARIS_JAX_CACHE=DIR``;
-off by default, where it says why).
+JAX's persistent compilation cache is on, as in ``tests/solaris_env/conftest.py`` (``SOLARIS_JAX_CACHE``, default
+``~/.cache/solaris_env/jax``; empty disables it): the renderer and the test model compile once per machine.
 """
 
 import os
+from pathlib import Path
 
 import jax
 import pytest
 import torch
 
-_cache = os.environ.get("SOLARIS_JAX_CACHE", "")
+_cache = os.environ.get("SOLARIS_JAX_CACHE", str(Path.home() / ".cache" / "solaris_env" / "jax"))
 if _cache:
     jax.config.update("jax_compilation_cache_dir", _cache)
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)

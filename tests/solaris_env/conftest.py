@@ -2,14 +2,14 @@
 session (its programs compile once per batch size: B = 1 for the parallel envs, B = 2 for the vector envs), env
 factories on it, and a test task that ends one player's episode early.
 
-JAX's persistent compilation cache is opt-in (``SOLARIS_JAX_CACHE=DIR``; off by default): the test model's
-programs take ~10-40 s each to compile on 2 cores and later runs load them in ~1 s. It is off by default
-because reading a cached executable back can crash the process on the CPU backend (session 32's CI run: a
-segmentation fault in ``deserialize_executable`` at ``test_self_forcing``, reproduced only in a full run;
-jax-ml/jax#28908 is an open report of the same kind). A cold CI run gains little from it anyway.
+JAX's persistent compilation cache is switched on for this session (``SOLARIS_JAX_CACHE``, default
+``~/.cache/solaris_env/jax``; set it to an empty string to disable): the test model's programs take ~10-40 s
+each to compile on 2 cores and are then loaded in ~1 s by later runs. It caches compiled executables only,
+keyed by the program, so results are the same with or without it.
 """
 
 import os
+from pathlib import Path
 
 import jax
 import numpy as np
@@ -17,7 +17,7 @@ import pytest
 
 from solaris_env.tasks import Task, TaskStep
 
-_cache = os.environ.get("SOLARIS_JAX_CACHE", "")
+_cache = os.environ.get("SOLARIS_JAX_CACHE", str(Path.home() / ".cache" / "solaris_env" / "jax"))
 if _cache:
     jax.config.update("jax_compilation_cache_dir", _cache)
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)

@@ -346,7 +346,7 @@ def test_n_step_determinism_same_seed_same_frames_other_seed_differs(dream):
 ROLLOUT_IN_A_PROCESS = """
 import os, sys
 import jax
-cache = os.environ.get("SOLARIS_JAX_CACHE", "")
+cache = os.environ.get("SOLARIS_JAX_CACHE", os.path.expanduser("~/.cache/solaris_env/jax"))
 if cache:
     jax.config.update("jax_compilation_cache_dir", cache)
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
