@@ -9,6 +9,11 @@ critic step.
 from __future__ import annotations
 
 import dataclasses
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -29,6 +34,7 @@ from solaris_env.world_model.dit import WorldDiT
 from training import self_forcing as sf
 from training.step import check_finite
 
+REPO = Path(__file__).resolve().parents[2]
 FRAMES = 3
 LR = 1e-3  # our tiny models need larger steps than the spec's 3e-6 / 3e-7 to move visibly
 FORWARD_TOL = 1e-4
@@ -69,8 +75,7 @@ def cfg():
     return cfg
 
 
-@pytest.fixture(scope="module")
-def batch(cfg):
+def make_batch(cfg: WorldModelConfig) -> dict:
     """A ``prepare_batch``-shaped dict (same keys, shapes, action padding) of random values: the frozen
     VAE / image encoder are not under test here and compiling them would dominate this file's runtime
     (``tests/training/test_step.py`` covers ``prepare_batch`` itself)."""
@@ -86,6 +91,11 @@ def batch(cfg):
         "mouse": left_pad_actions(mouse, cfg.action_left_padding),
         "keyboard": left_pad_actions(keyboard.astype(jnp.float32), cfg.action_left_padding),
     }
+
+
+@pytest.fixture(scope="module")
+def batch(cfg):
+    return make_batch(cfg)
 
 
 @pytest.fixture(scope="module")
@@ -319,16 +329,25 @@ def test_state_is_a_pytree_of_arrays(sf_setup):
 # ---------------------------------------------------------------------------------------------
 
 
+def make_warp_cfg() -> WorldModelConfig:
+    cfg = WorldModelConfig.test()
+    return WorldModelConfig.test(dit=dataclasses.replace(cfg.dit, camera_warp=(0.3, 0.5)))
+
+
+def make_warp_batch(batch: dict) -> dict:
+    """``batch`` with turning mice (a few degrees per frame, so the warp moves latents by fractions of a pixel
+    and more) and the warp's conditioning channels."""
+    return {**batch, "mouse": 4.0 * batch["mouse"]}
+
+
 @pytest.fixture(scope="module")
 def warp_cfg(cfg):
-    return WorldModelConfig.test(dit=dataclasses.replace(cfg.dit, camera_warp=(0.3, 0.5)))
+    return make_warp_cfg()
 
 
 @pytest.fixture(scope="module")
 def warp_batch(warp_cfg, batch):
-    """``batch`` with turning mice (a few degrees per frame, so the warp moves latents by fractions of a pixel
-    and more) and the warp's conditioning channels."""
-    return {**batch, "mouse": 4.0 * batch["mouse"]}
+    return make_warp_batch(batch)
 
 
 def test_warp_checkpointed_recompute_equals_rollout_x0(warp_cfg, warp_batch):
@@ -358,7 +377,10 @@ def test_warp_score_models_read_the_clean_previous_frames(warp_cfg, warp_batch):
                                   sf.score_x0(plain, x_t, t, warp_batch, x_t))
 
 
-def test_warp_iteration_trains_generator_and_critic(warp_cfg, warp_batch):
+def warp_iteration() -> dict:
+    """One Self Forcing iteration on the warp layout -> its generator grad norm, critic loss, and whether the
+    generator's parameters moved."""
+    warp_cfg = make_warp_cfg()
     sf_cfg = sf.SelfForcingConfig(generator_lr=LR, critic_lr=LR)
     gen_tx, critic_tx = sf.make_optimizers(sf_cfg)
     graphs, state = sf.create_self_forcing_state(*(_random_dit(warp_cfg, s) for s in (0, 1, 2)), gen_tx, critic_tx,
@@ -366,7 +388,25 @@ def test_warp_iteration_trains_generator_and_critic(warp_cfg, warp_batch):
     before = _flat(jax.tree.map(np.asarray, state.generator.params))
     iteration = sf.make_iteration(sf.make_checkpointed_generator_step(graphs, gen_tx, sf_cfg),
                                   sf.make_critic_step(graphs, critic_tx, sf_cfg), sf_cfg)
-    state, metrics = iteration(state, warp_batch)
+    state, metrics = iteration(state, make_warp_batch(make_batch(WorldModelConfig.test())))
     metrics = check_finite(metrics, 0)
-    assert metrics["generator/grad_norm"] > 0 and metrics["critic/loss"] > 0
-    assert not np.array_equal(before, _flat(state.generator.params))
+    return {"generator_grad_norm": float(metrics["generator/grad_norm"]),
+            "critic_loss": float(metrics["critic/loss"]),
+            "generator_moved": not np.array_equal(before, _flat(state.generator.params))}
+
+
+def test_warp_iteration_trains_generator_and_critic(tmp_path):
+    """Run in a fresh process: compiling this program (the suite's largest, optimisations off) inside the full
+    suite's long-lived process crashed it twice, once loading it from JAX's compilation cache (SIGSEGV, session
+    32's CI run) and once compiling it (SIGABRT), while the same program compiles and runs alone every time."""
+    out = tmp_path / "warp_iteration.json"
+    proc = subprocess.run([sys.executable, __file__, str(out)], check=False, cwd=REPO, capture_output=True,
+                          text=True, timeout=900, env=dict(os.environ, JAX_PLATFORMS="cpu"))
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    result = json.loads(out.read_text())
+    assert result["generator_grad_norm"] > 0 and result["critic_loss"] > 0 and result["generator_moved"]
+
+
+if __name__ == "__main__":  # the worker of test_warp_iteration_trains_generator_and_critic
+    jax.config.update("jax_disable_most_optimizations", True)  # as _quick_compiles
+    Path(sys.argv[1]).write_text(json.dumps(warp_iteration()))
