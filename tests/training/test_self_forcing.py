@@ -396,9 +396,9 @@ def warp_iteration() -> dict:
 
 
 def test_warp_iteration_trains_generator_and_critic(tmp_path):
-    """Run in a fresh process: compiling this program (the suite's largest, optimisations off) inside the full
-    suite's long-lived process crashed it twice, once loading it from JAX's compilation cache (SIGSEGV, session
-    32's CI run) and once compiling it (SIGABRT), while the same program compiles and runs alone every time."""
+    """Run in a fresh process: inside the full suite's long-lived process this program (among the suite's
+    largest, optimisations off) crashed it three times, loading it from JAX's compilation cache (SIGSEGV: session
+    32's CI run, and here) or compiling it (SIGABRT), while it compiles and runs alone every time."""
     out = tmp_path / "warp_iteration.json"
     proc = subprocess.run([sys.executable, __file__, str(out)], check=False, cwd=REPO, capture_output=True,
                           text=True, timeout=900, env=dict(os.environ, JAX_PLATFORMS="cpu"))
