@@ -330,8 +330,7 @@ def test_state_is_a_pytree_of_arrays(sf_setup):
 
 
 def make_warp_cfg() -> WorldModelConfig:
-    cfg = WorldModelConfig.test()
-    return WorldModelConfig.test(dit=dataclasses.replace(cfg.dit, camera_warp=(0.3, 0.5)))
+    return WorldModelConfig.test(dit=dataclasses.replace(WorldModelConfig.test().dit, camera_warp=(0.3, 0.5)))
 
 
 def make_warp_batch(batch: dict) -> dict:
@@ -341,12 +340,12 @@ def make_warp_batch(batch: dict) -> dict:
 
 
 @pytest.fixture(scope="module")
-def warp_cfg(cfg):
+def warp_cfg():
     return make_warp_cfg()
 
 
 @pytest.fixture(scope="module")
-def warp_batch(warp_cfg, batch):
+def warp_batch(batch):
     return make_warp_batch(batch)
 
 
