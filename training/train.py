@@ -72,8 +72,7 @@ logger = logging.getLogger(__name__)
 class FlowStage:
     """A flow-matching DiT stage: its DiT entry point, noise type, the stage it starts from, its data, and
     its objective (``flow_matching``: ``step.make_train_step``; ``rollout_regression``: the same loss with
-    the model's own rollout as the context, ``training.rollout_regression``; ``teacher_forcing``: every frame
-    from the true, lightly noised past, ``training.teacher_forcing``)."""
+    the model's own rollout as the context, ``training.rollout_regression``)."""
 
     entry_point: str
     noise_type: str
@@ -88,8 +87,6 @@ FLOW_STAGES = {
     "mp-causal": FlowStage("forward_causal", "diffusion_forcing", "mp-bidirectional", single_player=False),
     "mp-rollout": FlowStage("forward_causal", "diffusion_forcing", "mp-causal", single_player=False,
                             objective="rollout_regression"),
-    "mp-teacher": FlowStage("forward_causal", "diffusion_forcing", "mp-causal", single_player=False,
-                            objective="teacher_forcing"),
 }
 
 
@@ -457,9 +454,6 @@ def train_flow(stage: str, out: str | Path, data_dir: str | Path, sc: FlowStageC
     if fs.objective == "rollout_regression":
         from training.rollout_regression import make_rollout_regression_step
         train_step = make_rollout_regression_step(graphdef, tx, ema_decay)
-    elif fs.objective == "teacher_forcing":
-        from training.teacher_forcing import make_teacher_forcing_step
-        train_step = make_teacher_forcing_step(graphdef, tx, ema_decay)
     else:
         train_step = make_train_step(graphdef, fs.entry_point, fs.noise_type, tx, ema_decay)
     from training.latents import batch_spec, make_prepare_latents

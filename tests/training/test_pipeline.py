@@ -142,16 +142,6 @@ def test_rollout_regression_stage_runs_from_stage_3(run, data):
     assert (model_dir(run, "mp-rollout") / "config.json").is_file()
 
 
-def test_teacher_forcing_stage_runs_from_stage_3(run, data):
-    """``mp-teacher`` (not part of ``all``) fine-tunes the stage-3 model from the true past."""
-    assert cli.main(["mp-teacher", "--preset", "test", "--data", str(data), "--out", str(run)]) == 0
-    steps = json.loads((REPO / "training" / "configs" / "test.json").read_text())["mp-teacher"]["steps"]
-    metrics = read_metrics(run / "mp-teacher" / "metrics.jsonl")
-    assert [m["step"] for m in metrics] == list(range(1, steps + 1))
-    assert all(m["loss"] > 0 and m["stage"] == "mp-teacher" for m in metrics)
-    assert (model_dir(run, "mp-teacher") / "config.json").is_file()
-
-
 def test_action_conditioning_rewrites_a_model_that_computes_the_same(run, tmp_path):
     """``solaris-train action-conditioning --mouse-gain``: the new config, the mouse rows rescaled, the same
     generated frames (within one grey level) for a turning rollout."""

@@ -1,5 +1,5 @@
-"""``training.objectives``, ``training.step``, ``training.rollout_regression`` and ``training.teacher_forcing``:
-flow-matching objectives and jitted train steps on the ``test`` preset (B=2, 5 frames -> F=2)."""
+"""``training.objectives``, ``training.step`` and ``training.rollout_regression``: flow-matching objectives
+and jitted train steps on the ``test`` preset (B=2, 5 frames -> F=2)."""
 
 from __future__ import annotations
 
@@ -298,67 +298,3 @@ def test_a_step_compiled_ahead_is_not_compiled_again_by_the_loop():
         assert len(compiles) == 1
     finally:
         monitoring.unregister_event_duration_listener(listener)
-
-
-# ---------------------------------------------------------------------------------------------
-# Teacher forcing (training/teacher_forcing.py)
-# ---------------------------------------------------------------------------------------------
-
-
-def _perturbed(modules):
-    """(graphdef, params, rest) with the zero-initialised output head perturbed, so the prediction depends on
-    the context."""
-    from flax import nnx
-
-    graphdef, params, rest = nnx.split(modules[0], nnx.Param, ...)
-    leaves, treedef = jax.tree.flatten(params)
-    keys = jax.random.split(jax.random.key(3), len(leaves))
-    return graphdef, jax.tree.unflatten(treedef, [x + 0.05 * jax.random.normal(k, x.shape, x.dtype)
-                                                  for x, k in zip(leaves, keys)]), rest
-
-
-def test_teacher_forcing_is_the_flow_loss_from_the_true_noised_past(modules, batch):
-    """The loss is the flow-matching loss of the teacher-forcing pass whose clean half is the ground truth
-    noised at t' <= context_noise_max (t' given to the DiT); with context_noise_max = 0 the past is exact."""
-    from flax import nnx
-
-    from training.objectives import noisy_latents
-    from training.teacher_forcing import CONTEXT_NOISE_MAX, teacher_forcing_loss
-
-    graphdef, params, rest = _perturbed(modules)
-    dit = nnx.merge(graphdef, params, rest)
-    x0, key = batch["x0"], jax.random.key(5)
-    k_ctx_t, k_ctx_noise, k_t, k_noise = jax.random.split(key, 4)
-    t = sample_timesteps(k_t, x0.shape[:3], "diffusion_forcing")
-    noise = jax.random.normal(k_noise, x0.shape)
-
-    def manual(past, t_past):
-        v = dit.forward_teacher_forcing(past, noisy_latents(x0, noise, t), t_past.astype(jnp.float32),
-                                        t.astype(jnp.float32), batch["cond"], batch["context"], batch["mouse"],
-                                        batch["keyboard"])
-        return float(jnp.mean(jnp.square(v - (noise - x0))))
-
-    t_ctx = jax.random.randint(k_ctx_t, x0.shape[:3], 0, CONTEXT_NOISE_MAX + 1, dtype=jnp.int32)
-    assert 0 < int(t_ctx.max()) <= CONTEXT_NOISE_MAX
-    noised_past = noisy_latents(x0, jax.random.normal(k_ctx_noise, x0.shape), t_ctx)
-    loss = jax.jit(lambda p: teacher_forcing_loss(graphdef, p, rest, batch, key))(params)
-    assert float(loss) == pytest.approx(manual(noised_past, t_ctx), rel=1e-4)
-    exact = jax.jit(lambda p: teacher_forcing_loss(graphdef, p, rest, batch, key, context_noise_max=0))(params)
-    assert float(exact) == pytest.approx(manual(x0, jnp.zeros_like(t)), rel=1e-4)
-
-
-def test_teacher_forcing_step_overfits_a_batch(modules, batch):
-    from training.teacher_forcing import make_teacher_forcing_step, teacher_forcing_loss
-
-    tx = make_optimizer(LR)
-    graphdef, state = TrainState.create(modules[0], tx, rng=0)
-    step = make_teacher_forcing_step(graphdef, tx)
-    keys = jax.random.split(jax.random.key(11), 8)
-    expected = jax.jit(lambda p, r: jnp.mean(jax.lax.map(lambda k: teacher_forcing_loss(graphdef, p, r, batch, k), keys)))
-    loss0 = float(expected(state.params, state.rest))
-    for i in range(20):
-        state, metrics = step(state, batch)
-        check_finite(metrics, i)
-    loss20 = float(expected(state.params, state.rest))
-    assert int(state.step) == 20 and np.isfinite(loss0)
-    assert loss20 < 0.95 * loss0, (loss0, loss20)
