@@ -73,17 +73,20 @@ def test_the_official_layout_is_wan_and_tiny16_is_the_codec():
 
 
 def test_streaming_equals_cacheless(vae, video):
+    # float32 equality up to rounding: XLA blocks a matmul differently for a different number of rows, so a chunk
+    # and the whole clip round differently (CI saw 1.4e-6 on values ~1)
+    tol = dict(rtol=1e-5, atol=1e-5)
     mu = vae.encode(video)
     m0, cache = vae.encode_chunked(video[:, :5])
     m1, _ = vae.encode_chunked(video[:, 5:], cache)
-    np.testing.assert_allclose(jnp.concatenate([m0, m1], 1), mu, atol=1e-6)
+    np.testing.assert_allclose(jnp.concatenate([m0, m1], 1), mu, **tol)
     full = vae.decode(mu)
     parts, cache = [], None
     for f in range(mu.shape[1]):
         out, cache = vae.decode_step(mu[:, f:f + 1], cache)
         parts.append(out)
     assert [p.shape[1] for p in parts] == [1, TF, TF]
-    np.testing.assert_allclose(jnp.concatenate(parts, 1), full, atol=1e-6)
+    np.testing.assert_allclose(jnp.concatenate(parts, 1), full, **tol)
 
 
 def test_a_latent_sees_only_its_own_frames(vae, video):
