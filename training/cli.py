@@ -115,7 +115,7 @@ def cmd_with_vae(args) -> int:
 def cmd_action_conditioning(args) -> int:
     from training.surgery import with_action_conditioning
     dest = with_action_conditioning(args.model, args.out, args.mouse_gain, camera_warp=args.camera_warp,
-                                    walk_warp=args.walk_warp)
+                                    walk_warp=args.walk_warp, previous_skip=args.previous_skip or None)
     print(f"wrote {dest}")
     return 0
 
@@ -210,6 +210,9 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--walk-warp", type=float, default=None, metavar="S",
                    help="set DiTConfig.walk_warp (eye heights per tick of a held movement key; 0 = off; needs the "
                         "camera warp): the warped previous latent also follows the walk")
+    g.add_argument("--previous-skip", action="store_true",
+                   help="turn on DiTConfig.previous_skip (needs the camera warp): the velocity gets a gated "
+                        "x_t - warped previous latent, the gate starting at zero")
     g.add_argument("--out", required=True, help="the new model directory")
     g.set_defaults(func=cmd_action_conditioning)
     o = sub.add_parser("official-dit", help="a model's VAE and image encoder under a fresh DiT in the official "

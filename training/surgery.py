@@ -109,7 +109,7 @@ def with_vae(model: str | Path, vae_from: str | Path, dest: str | Path) -> Path:
 
 def with_action_conditioning(model: str | Path, dest: str | Path, mouse_input_gain: float | None = None,
                              camera_warp: tuple[float, float] | None = None,
-                             walk_warp: float | None = None) -> Path:
+                             walk_warp: float | None = None, previous_skip: bool | None = None) -> Path:
     """Write ``model`` under another action conditioning, computing the same function (None keeps a setting):
 
     * ``mouse_input_gain``: the mouse rows of every ``mouse_mlp`` first kernel scaled by old / new gain, so
@@ -119,7 +119,9 @@ def with_action_conditioning(model: str | Path, dest: str | Path, mouse_input_ga
       changes (the weights are kept: the function changes wherever the camera turns);
     * ``walk_warp``: sets ``DiTConfig.walk_warp`` (eye heights per tick; needs the camera warp, given or already
       on). The weights are kept: the function changes only where the movement keys are held, and fine-tuning
-      teaches the DiT to read the walked warp.
+      teaches the DiT to read the walked warp;
+    * ``previous_skip=True``: turns on ``DiTConfig.previous_skip`` with its gate at zero (needs the camera warp,
+      given or already on); from a model that has it, its trained gate is kept.
     """
     base = WorldModel.load(model)
     old = base.config
@@ -129,6 +131,10 @@ def with_action_conditioning(model: str | Path, dest: str | Path, mouse_input_ga
     dit = old.dit if camera_warp is None else dataclasses.replace(old.dit, camera_warp=tuple(map(float, camera_warp)))
     if walk_warp is not None:
         dit = dataclasses.replace(dit, walk_warp=float(walk_warp))
+    if previous_skip is not None:
+        dit = dataclasses.replace(dit, previous_skip=bool(previous_skip))
+    if old.dit.previous_skip and not dit.previous_skip:
+        raise ValueError(f"{model} was trained with previous_skip; dropping it would drop its trained skip gate")
     if old.dit.camera_warp_enabled and not dit.camera_warp_enabled:
         raise ValueError(f"{model} was trained with camera_warp={old.dit.camera_warp}; dropping it would drop its "
                          "patch embedding's trained warp rows")
@@ -140,6 +146,9 @@ def with_action_conditioning(model: str | Path, dest: str | Path, mouse_input_ga
         pad = [(0, 0)] * k.ndim
         pad[-2] = (0, cfg.patch_in_channels - old.patch_in_channels)
         pe.set_value(jnp.pad(k, pad))
+    if dit.previous_skip and not old.dit.previous_skip:  # the gate at zero, as a fresh model has it
+        fresh = WorldModel.from_config(cfg)
+        dit_state["skip_gate"] = fresh.params[0]["skip_gate"]
     kernel = dit_state["blocks"]["action_model"]["mouse_mlp"]["layers"][0]["kernel"]
     kernel.set_value(rescaled_mouse_kernel(kernel.get_value(), old, action.mouse_input_gain))
     checkpoint.save(dest, cfg, dict(zip(COMPONENTS, (dit_state, vae_state, encoder_state))))
@@ -148,14 +157,14 @@ def with_action_conditioning(model: str | Path, dest: str | Path, mouse_input_ga
 
 def official_dit(model: str | Path, dest: str | Path, seed: int = 0) -> Path:
     """Write ``model``'s VAE and image encoder, unchanged, with a freshly initialised DiT (``seed``) in the
-    official layout to ``dest``: our DiT options at their official values (``DiTConfig.camera_warp`` and
-    ``walk_warp`` off,
+    official layout to ``dest``: our DiT options at their official values (``DiTConfig.camera_warp``,
+    ``walk_warp`` and ``previous_skip`` off,
     ``ActionConfig.mouse_input_gain`` 1), every size as ``model``'s. Trained through the DiT stages with the
     same steps and data as ``model``'s DiT, it is the control that measures those options (docs/training.md,
     "The control row")."""
     base = WorldModel.load(model_directory(model))
     old = base.config
-    cfg = old.replace(dit=dataclasses.replace(old.dit, camera_warp=(0.0, 0.0), walk_warp=0.0),
+    cfg = old.replace(dit=dataclasses.replace(old.dit, camera_warp=(0.0, 0.0), walk_warp=0.0, previous_skip=False),
                       action=dataclasses.replace(old.action, mouse_input_gain=1.0))
     fresh_dit, _, _ = WorldModel.from_config(cfg, seed=seed).params
     _, vae_state, encoder_state = base.params

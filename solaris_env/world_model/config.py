@@ -58,6 +58,11 @@ class DiTConfig:
     # heights per tick of a held movement key (``camera.walk_latents``; Minecraft's walking speed over its eye
     # height is 0.216 / 1.62 = 0.133). Needs the camera warp, whose input channels it shares.
     walk_warp: float = 0.0
+    # Previous-frame skip (ours; off = the official model): the velocity gets g(t) * (x_t - base) added, base being
+    # the warped previous latent (the first-frame latent where the conditioning gives the frame) and g a
+    # zero-initialised per-channel gate of the time embedding, so the DiT starts from "the frame is the
+    # previous one, warped" and learns the change (docs/model.md §8.3). Needs the camera warp.
+    previous_skip: bool = False
 
     def __post_init__(self):
         _require(self.dim % self.num_heads == 0, f"dim={self.dim} must be divisible by num_heads={self.num_heads}")
@@ -69,6 +74,8 @@ class DiTConfig:
                  f"walk_warp must be a finite number >= 0 (eye heights per tick), got {self.walk_warp}")
         _require(self.walk_warp == 0.0 or self.camera_warp_enabled,
                  f"walk_warp={self.walk_warp} moves the camera warp's input; it needs camera_warp on")
+        _require(not self.previous_skip or self.camera_warp_enabled,
+                 f"previous_skip={self.previous_skip} adds the camera warp's previous latent; it needs camera_warp on")
         _require(self.head_dim % 2 == 0, f"head_dim={self.head_dim} must be even for RoPE")
         _require(self.multiplayer in MULTIPLAYER_METHODS,
                  f"multiplayer must be one of {MULTIPLAYER_METHODS}, got {self.multiplayer!r}")

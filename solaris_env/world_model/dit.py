@@ -451,6 +451,9 @@ class WorldDiT(nnx.Module):
         self.player_embed = nnx.Embed(d.max_players, d.dim, **kw)
         self.blocks = _stacked_blocks(cfg, rngs)
         self.head = Head(cfg, rngs=rngs)
+        if d.previous_skip:  # zero: the untrained gate leaves the velocity as the head's (docs/model.md §8.3)
+            self.skip_gate = dense(d.dim, cfg.out_channels, use_bias=True, kernel_init=nnx.initializers.zeros_init(),
+                                   **kw)
 
     # -- entry points ------------------------------------------------------------------------------
     def forward_bidirectional(self, x, t, cond, context, mouse, keyboard, clean=None) -> jax.Array:
@@ -536,7 +539,7 @@ class WorldDiT(nnx.Module):
         for name, n in (("layers", len(layers)), ("cache", len(cache.layers))):
             if n != d.num_layers:
                 raise ValueError(f"{name} has {n} layers; the config has num_layers={d.num_layers}")
-        cond_in, tokens, e = self._prepare_cached(x, t, cond, context_kv, mouse, keyboard, cache)
+        cond_in, tokens, e, base = self._prepare_cached(x, t, cond, context_kv, mouse, keyboard, cache)
         gh, gw = self._grid()
         angles = rope.rope_3d_angles(d.rope_split, d.rope_theta, num_frames, gh, gw, tokens.shape[1], start_frame)
         action_angles = rope.temporal_rope_angles(c.action.rope_dims, c.action.rope_theta, num_frames, start_frame)
@@ -546,7 +549,7 @@ class WorldDiT(nnx.Module):
             tokens, layer_cache = block.decode(tokens, cond_in, angles, action_angles, i, layer_cache,
                                                (_fold(k), _fold(v)), commit)
             new_layers.append(layer_cache)
-        v = self._unpatchify(self.head(tokens, e))
+        v = self._output(tokens, e, x, base)
         if not commit:
             return v, cache
         # the camera warp's latent: the newest committed frame's
@@ -643,14 +646,21 @@ class WorldDiT(nnx.Module):
         return f
 
     def _prepare(self, x, t, cond, context, mouse_BPFWA, keyboard_BPFWA, prev=None):
-        """Patchify, embed time/context/players -> (conditioning, tokens_BPFLD, e_BPFD); ``context=None``
-        leaves the projected context out (the caller brings per-layer cross-attention K/V). ``prev``: each
-        frame's previous latent (like x), read with the camera warp only."""
+        """Patchify, embed time/context/players -> (conditioning, tokens_BPFLD, e_BPFD, skip base or None);
+        ``context=None`` leaves the projected context out (the caller brings per-layer cross-attention K/V).
+        ``prev``: each frame's previous latent (like x), read with the camera warp only. The skip base
+        (``previous_skip``): the warped previous latent, the first-frame latent where the mask gives the frame."""
         b, p, f = x.shape[:3]
         dtype = jnp.dtype(self.cfg.dit.dtype)
         parts = [x, cond]  # channel order: [x, mask, first-frame latent (, warped previous latent)]
+        base = None
         if self.cfg.dit.camera_warp_enabled:
-            parts.append(self._warped(prev, mouse_BPFWA, keyboard_BPFWA))
+            warped = self._warped(prev, mouse_BPFWA, keyboard_BPFWA)
+            parts.append(warped)
+            if self.cfg.dit.previous_skip:
+                given = cond[..., :1].astype(jnp.float32)  # mask channel 0: 1 where the frame is given
+                first = cond[..., cond.shape[-1] - x.shape[-1]:].astype(jnp.float32)
+                base = given * first + (1.0 - given) * warped.astype(jnp.float32)
         xc = jnp.concatenate(parts, axis=-1).astype(dtype)
         tokens = self.patch_embedding(xc.reshape((b * p,) + xc.shape[2:]))  # (B*P, F, h, w, D)
         tokens = tokens.reshape(b, p, f, -1, tokens.shape[-1])
@@ -659,7 +669,7 @@ class WorldDiT(nnx.Module):
         player = self.player_embed(jnp.arange(p))
         projected = None if context is None else self.img_emb(context.astype(dtype))
         cond_in = _Conditioning(e0, player, projected, mouse_BPFWA, keyboard_BPFWA)
-        return cond_in, tokens, e
+        return cond_in, tokens, e, base
 
     def _sequence_plan(self, frame_pos_F, frame_mask, kv_stop_F, num_players: int) -> _SequencePlan:
         c, d = self.cfg, self.cfg.dit
@@ -676,7 +686,7 @@ class WorldDiT(nnx.Module):
 
     def _forward_sequence(self, x, t, cond, context, mouse_BPFWA, keyboard_BPFWA, frame_pos_F, frame_mask,
                           kv_stop_F, attend=None, remat: bool = False, prev=None) -> jax.Array:
-        cond_in, tokens, e = self._prepare(x, t, cond, context, mouse_BPFWA, keyboard_BPFWA, prev)
+        cond_in, tokens, e, base = self._prepare(x, t, cond, context, mouse_BPFWA, keyboard_BPFWA, prev)
         plan = self._sequence_plan(frame_pos_F, frame_mask, kv_stop_F, x.shape[1])
         if attend is not None:  # the self-attention brings its own mask; no dense token mask
             plan = plan._replace(token_mask=None, attend=attend)
@@ -685,7 +695,15 @@ class WorldDiT(nnx.Module):
             return block(h, cond_in, plan, layer), None
 
         tokens, _ = _scan_layers(self.blocks, step, tokens, jnp.arange(self.cfg.dit.num_layers), remat)
-        return self._unpatchify(self.head(tokens, e))
+        return self._output(tokens, e, x, base)
+
+    def _output(self, tokens_BPFLD, e_BPFD, x, base) -> jax.Array:
+        """The head's velocity, plus the previous-frame skip g(t) * (x - base) where ``base`` is given."""
+        v = self._unpatchify(self.head(tokens_BPFLD, e_BPFD))
+        if base is None:
+            return v
+        gate_BPF11C = self.skip_gate(jax.nn.silu(e_BPFD))[:, :, :, None, None, :]
+        return v + (gate_BPF11C * (x.astype(v.dtype) - base.astype(v.dtype))).astype(v.dtype)
 
     def _unpatchify(self, y_BPFLO: jax.Array) -> jax.Array:
         """(B, P, F, h*w, pf*ph*pw*C) -> (B, P, F*pf, h*ph, w*pw, C), channels fastest."""

@@ -170,6 +170,7 @@ def test_action_conditioning_rewrites_a_model_that_computes_the_same(run, tmp_pa
 def test_camera_warp_retrofit_computes_the_same(run, tmp_path):
     """``action-conditioning --camera-warp``: the patch embedding gains the warped previous latent's rows at zero,
     so a turning rollout generates the same frames; turning the warp off again is refused."""
+    import jax
     import numpy as np
 
     from solaris_env.world_model.world_model import WorldModel
@@ -212,6 +213,24 @@ def test_camera_warp_retrofit_computes_the_same(run, tmp_path):
     assert np.array_equal(outs[0], outs[1])
     with pytest.raises(ValueError, match="walk_warp"):
         with_action_conditioning(src, tmp_path / "nowarp", walk_warp=0.1)
+    # the previous-frame skip starts with its gate at zero: the same frames while turning and walking
+    skip = tmp_path / "skip"
+    assert cli.main(["action-conditioning", str(walk), "--previous-skip", "--out", str(skip)]) == 0
+    skipper = WorldModel.load(skip)
+    assert skipper.config.dit.previous_skip and skipper.config.dit.walk_warp == 0.1
+    assert all(np.abs(np.asarray(a)).max() == 0 for a in jax.tree.leaves(skipper.params[0]["skip_gate"]))
+    actions[..., 0] = 1.0  # forward held, still turning
+    outs = []
+    for model in (walker, skipper):
+        state = model.init(first, 0)
+        for _ in range(3):
+            frames, state = model.step(state, actions)
+        outs.append(np.asarray(frames, np.int16))
+    assert np.abs(outs[0] - outs[1]).max() <= 1
+    with pytest.raises(ValueError, match="previous_skip"):
+        with_action_conditioning(src, tmp_path / "noskip", previous_skip=True)  # no camera warp to read
+    with pytest.raises(ValueError, match="previous_skip"):
+        with_action_conditioning(skip, tmp_path / "drop", previous_skip=False)
 
 
 def test_self_forcing_stage_runs_from_stages_2_and_3(run, data):

@@ -245,3 +245,65 @@ def test_walk_warp_moves_the_warp_input_only_when_walking():
     delta = jnp.abs(causal_fn(model, *args(walking)) - causal_fn(model_still, *args(walking)))
     delta = delta.max(axis=(0, 1, 3, 4, 5))
     assert float(delta[0]) == 0.0 and float(delta[1:].min()) > 1e-4, delta  # frame 0 has no previous frame
+
+
+# ---------------------------------------------------------------------------------------------
+# Previous-frame skip
+# ---------------------------------------------------------------------------------------------
+
+def _skipping(seed: int, walk: float = 0.0):
+    cfg = _warp_cfg()
+    cfg = cfg.replace(dit=dataclasses.replace(cfg.dit, walk_warp=walk, previous_skip=True))
+    return cfg, _build(cfg, seed=seed), _turning(cfg, seed)[2]
+
+
+def test_previous_skip_config():
+    with pytest.raises(ValueError, match="previous_skip"):
+        DiTConfig(previous_skip=True)  # no camera warp, so no previous latent
+    assert DiTConfig(camera_warp=WARP, previous_skip=True).previous_skip
+    assert not DiTConfig().previous_skip  # the official layout
+
+
+def test_previous_skip_cached_rollout_equals_teacher_forcing_and_causal():
+    cfg, model, inp = _skipping(34, walk=0.13)
+    from solaris_env.spaces import MODEL_INDEX
+    inp["keyboard"] = inp["keyboard"].at[..., MODEL_INDEX["forward"]].set(1.0)
+    _cached_rollout_agrees(cfg, model, inp)
+
+
+def test_previous_skip_adds_the_gated_difference_to_the_previous_latent():
+    """v(skip) - v(the same weights without it) = g(t) * (x - base): base is the previous latent (no turn, no walk:
+    the warp is the identity) where the mask is 0, the first-frame latent where it is 1; g = the gate's bias when
+    its kernel is zero."""
+    cfg, model, inp = _skipping(35)
+    plain_cfg = cfg.replace(dit=dataclasses.replace(cfg.dit, previous_skip=False))
+    plain = _build(plain_cfg, seed=35)
+    nnx.update(plain, nnx.state(model).filter(lambda path, _: path[0] != "skip_gate"))
+    bias = jnp.linspace(-1.0, 2.0, cfg.out_channels)
+    model.skip_gate.kernel.set_value(jnp.zeros_like(model.skip_gate.kernel.get_value()))
+    model.skip_gate.bias.set_value(bias)
+    mask = jnp.zeros(inp["cond"].shape[:-1] + (1,)).at[:, :, 0].set(1.0)
+    cond = inp["cond"].at[..., :1].set(mask)
+    first = cond[..., cond.shape[-1] - cfg.out_channels:]
+    still = dict(inp, mouse=jnp.zeros_like(inp["mouse"]), keyboard=jnp.zeros_like(inp["keyboard"]), cond=cond)
+    args = _seq_args(still, "noisy")
+    clean = inp["clean"]
+    fn = nnx.jit(lambda m, *a: m.forward_causal(*a, clean=clean))
+    delta = fn(model, *args) - fn(plain, *args)
+    prev = jnp.concatenate([first[:, :, :1], clean[:, :, :-1]], axis=2)
+    np.testing.assert_allclose(delta, bias * (inp["noisy"] - prev), atol=1e-4, rtol=1e-5)
+
+
+def test_previous_skip_gate_learns_from_zero():
+    """At its zero initialisation the gate still gets a gradient (through x - base), so fine-tuning can open it."""
+    cfg, model, inp = _skipping(36)
+    model.skip_gate.kernel.set_value(jnp.zeros_like(model.skip_gate.kernel.get_value()))
+    model.skip_gate.bias.set_value(jnp.zeros_like(model.skip_gate.bias.get_value()))
+    args = _seq_args(inp, "noisy")
+
+    def loss(m):
+        return jnp.mean(jnp.square(m.forward_causal(*args, clean=inp["clean"]) - inp["clean"]))
+
+    grads = nnx.grad(loss)(model)
+    assert float(jnp.abs(grads["skip_gate"]["bias"].get_value()).min()) > 0
+    assert float(jnp.abs(grads["skip_gate"]["kernel"].get_value()).max()) > 0
