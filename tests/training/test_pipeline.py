@@ -167,6 +167,16 @@ def test_action_conditioning_rewrites_a_model_that_computes_the_same(run, tmp_pa
     assert np.abs(outs[0] - outs[1]).max() <= 1
 
 
+def third_step(model, first, actions):
+    """The frames of a rollout's third step (from the second step on the warp reads a committed latent), int16."""
+    import numpy as np
+
+    state = model.init(first, 0)
+    for _ in range(3):
+        frames, state = model.step(state, actions)
+    return np.asarray(frames, np.int16)
+
+
 def test_camera_warp_retrofit_computes_the_same(run, tmp_path):
     """``action-conditioning --camera-warp``: the patch embedding gains the warped previous latent's rows at zero,
     so a turning rollout generates the same frames; turning the warp off again is refused."""
@@ -189,12 +199,7 @@ def test_camera_warp_retrofit_computes_the_same(run, tmp_path):
     first = rng.integers(0, 256, (1, cfg.num_players, cfg.frame_height, cfg.frame_width, 3), dtype=np.uint8)
     actions = np.zeros((1, cfg.num_players, base.frames_per_step, 25), np.float32)
     actions[..., 23] = 0.6  # turning left every tick
-    outs = []
-    for model in (base, new):
-        state = model.init(first, 0)
-        for _ in range(3):  # from the second step on the warp reads a committed latent
-            frames, state = model.step(state, actions)
-        outs.append(np.asarray(frames, np.int16))
+    outs = [third_step(model, first, actions) for model in (base, new)]
     assert np.abs(outs[0] - outs[1]).max() <= 1
     with pytest.raises(ValueError, match="camera_warp"):
         with_action_conditioning(dest, tmp_path / "back", camera_warp=(0.0, 0.0))
@@ -204,12 +209,7 @@ def test_camera_warp_retrofit_computes_the_same(run, tmp_path):
     assert cli.main(["action-conditioning", str(dest), "--walk-warp", "0.1", "--out", str(walk)]) == 0
     walker = WorldModel.load(walk)
     assert walker.config.dit.walk_warp == 0.1 and walker.config.dit.camera_warp == (0.1, 0.06)
-    outs = []
-    for model in (new, walker):
-        state = model.init(first, 0)
-        for _ in range(3):
-            frames, state = model.step(state, actions)
-        outs.append(np.asarray(frames, np.int16))
+    outs = [third_step(model, first, actions) for model in (new, walker)]
     assert np.array_equal(outs[0], outs[1])
     with pytest.raises(ValueError, match="walk_warp"):
         with_action_conditioning(src, tmp_path / "nowarp", walk_warp=0.1)
@@ -220,12 +220,7 @@ def test_camera_warp_retrofit_computes_the_same(run, tmp_path):
     assert skipper.config.dit.previous_skip and skipper.config.dit.walk_warp == 0.1
     assert all(np.abs(np.asarray(a)).max() == 0 for a in jax.tree.leaves(skipper.params[0]["skip_gate"]))
     actions[..., 0] = 1.0  # forward held, still turning
-    outs = []
-    for model in (walker, skipper):
-        state = model.init(first, 0)
-        for _ in range(3):
-            frames, state = model.step(state, actions)
-        outs.append(np.asarray(frames, np.int16))
+    outs = [third_step(model, first, actions) for model in (walker, skipper)]
     assert np.abs(outs[0] - outs[1]).max() <= 1
     with pytest.raises(ValueError, match="previous_skip"):
         with_action_conditioning(src, tmp_path / "noskip", previous_skip=True)  # no camera warp to read
