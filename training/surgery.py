@@ -31,6 +31,7 @@ from solaris_env.world_model import checkpoint
 from solaris_env.world_model.action_module import rescaled_mouse_kernel
 from solaris_env.world_model.components import COMPONENTS
 from solaris_env.world_model.config import VAEConfig
+from solaris_env.world_model.dit import skip_gate
 from solaris_env.world_model.vae import CausalVideoVAE
 from solaris_env.world_model.world_model import WorldModel
 from training.vae import DECODER_MODULES
@@ -147,8 +148,7 @@ def with_action_conditioning(model: str | Path, dest: str | Path, mouse_input_ga
         pad[-2] = (0, cfg.patch_in_channels - old.patch_in_channels)
         pe.set_value(jnp.pad(k, pad))
     if dit.previous_skip and not old.dit.previous_skip:  # the gate at zero, as a fresh model has it
-        fresh = WorldModel.from_config(cfg)
-        dit_state["skip_gate"] = fresh.params[0]["skip_gate"]
+        dit_state["skip_gate"] = nnx.state(skip_gate(cfg, nnx.Rngs(0)), nnx.Param)
     kernel = dit_state["blocks"]["action_model"]["mouse_mlp"]["layers"][0]["kernel"]
     kernel.set_value(rescaled_mouse_kernel(kernel.get_value(), old, action.mouse_input_gain))
     checkpoint.save(dest, cfg, dict(zip(COMPONENTS, (dit_state, vae_state, encoder_state))))

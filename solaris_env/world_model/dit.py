@@ -451,9 +451,8 @@ class WorldDiT(nnx.Module):
         self.player_embed = nnx.Embed(d.max_players, d.dim, **kw)
         self.blocks = _stacked_blocks(cfg, rngs)
         self.head = Head(cfg, rngs=rngs)
-        if d.previous_skip:  # zero: the untrained gate leaves the velocity as the head's (docs/model.md §8.3)
-            self.skip_gate = dense(d.dim, cfg.out_channels, use_bias=True, kernel_init=nnx.initializers.zeros_init(),
-                                   **kw)
+        if d.previous_skip:
+            self.skip_gate = skip_gate(cfg, rngs)
 
     # -- entry points ------------------------------------------------------------------------------
     def forward_bidirectional(self, x, t, cond, context, mouse, keyboard, clean=None) -> jax.Array:
@@ -712,6 +711,13 @@ class WorldDiT(nnx.Module):
         pf, ph, pw = self.cfg.dit.patch_size
         y = y_BPFLO.reshape(b, p, f, gh, gw, pf, ph, pw, -1).transpose(0, 1, 2, 5, 3, 6, 4, 7, 8)
         return y.reshape(b, p, f * pf, gh * ph, gw * pw, -1)
+
+
+def skip_gate(cfg: WorldModelConfig, rngs: nnx.Rngs) -> nnx.Module:
+    """The previous-frame skip's gate, Linear(dim -> latent channels) of silu(e), at zero: the untrained gate
+    leaves the velocity as the head's (docs/model.md §8.3)."""
+    return dense(cfg.dit.dim, cfg.out_channels, use_bias=True, kernel_init=nnx.initializers.zeros_init(), rngs=rngs,
+                 **_dtypes(cfg))
 
 
 def _stacked_blocks(cfg: WorldModelConfig, rngs: nnx.Rngs) -> DiTBlock:
