@@ -114,7 +114,7 @@ class LoopSpec:
     lr: float
     fsdp: bool = False  # shard parameters and optimiser state over the "data" mesh axis (else replicated)
     lr_decay_steps: int = 0  # the optimiser's linear cool-down (``step.scheduled_lr``); only logged here
-    deadline: float | None = None  # epoch seconds: stop after the step that ends past it (``training.budget``)
+    deadline: float | None = None  # epoch seconds: the last step is the one after which the next would end past it
 
 
 def run_loop(spec: LoopSpec, out: Path, state: Any, step_fn: Callable, draw_batch: Callable[[], Any],
@@ -123,9 +123,11 @@ def run_loop(spec: LoopSpec, out: Path, state: Any, step_fn: Callable, draw_batc
     """Train ``state`` to ``spec.steps`` updates with checkpoints, metrics and samples; resumable.
 
     ``step_fn(state, batch) -> (state, metrics)`` donates ``state``; ``draw_batch()`` draws from ``sampler``
-    (its ``state_dict`` is checkpointed with the train state). With ``spec.deadline``, the first step that ends
-    past it is treated as the last one (logged, checkpointed, sampled) and the loop stops there; at least one
-    step runs. ``ckpt_every`` / ``sample_every`` <= 0: no checkpoints / samples at all (``training.sprint``,
+    (its ``state_dict`` is checkpointed with the train state). With ``spec.deadline`` (``training.budget``), a
+    step is the last one (logged, checkpointed, sampled) when it ends past the deadline or when the next step,
+    predicted to take as long as this one did (from the end of the previous step, its hooks included), would;
+    the first step, whose time is mostly the JIT compile, is judged by the first rule only. At least one step
+    runs. ``ckpt_every`` / ``sample_every`` <= 0: no checkpoints / samples at all (``training.sprint``,
     which never resumes). ``on_step(state, step)`` runs after every step. Returns the final state.
     """
     from training.distributed import make_mesh, shard_batch, shard_train_state
@@ -143,13 +145,17 @@ def run_loop(spec: LoopSpec, out: Path, state: Any, step_fn: Callable, draw_batc
     metrics_log = MetricsLogger(directory / "metrics.jsonl", resume_step=start)
     bar = metrics_log.progress(total=spec.steps, initial=start, desc=spec.stage)
     t_last, n_last = time.perf_counter(), start
+    step_ended = None  # epoch seconds at which the previous step (and its hooks) ended
     for step in range(start, spec.steps):
         state, metrics = step_fn(state, shard_batch(draw_batch(), mesh))
         done = step + 1
         last = done == spec.steps
-        if not last and spec.deadline is not None and time.time() >= spec.deadline:
-            logger.warning("%s: time budget reached, stopping at step %d of %d", spec.stage, done, spec.steps)
-            last = True
+        if not last and spec.deadline is not None:
+            now = time.time()
+            next_ends = now if step_ended is None else now + (now - step_ended)
+            if next_ends >= spec.deadline:
+                logger.warning("%s: time budget reached, stopping at step %d of %d", spec.stage, done, spec.steps)
+                last = True
         if done % spec.log_every == 0 or last:
             host = check_finite(metrics, step)
             now = time.perf_counter()
@@ -169,6 +175,7 @@ def run_loop(spec: LoopSpec, out: Path, state: Any, step_fn: Callable, draw_batc
             on_step(state, done)
         if last:
             break
+        step_ended = time.time()
     bar.close()
     metrics_log.close()
     ckpt.close()

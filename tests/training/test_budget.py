@@ -44,3 +44,38 @@ def test_run_clock_saves_in_the_background(tmp_path):
     on_disk = json.loads((tmp_path / CLOCK_FILE).read_text())["spent_s"]  # written by the thread, not by stop()
     clock.stop()
     assert on_disk > 0
+
+
+def _timed_loop(tmp_path, step_s: float, deadline_in_s: float, steps: int = 100) -> tuple[int, float, float]:
+    """``train.run_loop`` over a stand-in step that takes ``step_s``: (steps run, deadline, when it returned)."""
+    import jax.numpy as jnp
+    import numpy as np
+
+    from training.train import LoopSpec, run_loop
+
+    ran = []
+
+    def step_fn(state, batch):
+        time.sleep(step_s)
+        ran.append(1)
+        return state, {"loss": jnp.float32(0.0)}
+
+    deadline = time.time() + deadline_in_s
+    spec = LoopSpec("mp-causal", steps, log_every=1, ckpt_every=0, sample_every=0, tokens_per_step=1, lr=1e-3,
+                    deadline=deadline)
+    run_loop(spec, tmp_path, {"w": jnp.zeros(2)}, step_fn, lambda: {"x": np.zeros((1, 1))}, sampler=None,
+             resume=False)
+    return len(ran), deadline, time.time()
+
+
+def test_run_loop_stops_before_a_step_that_would_end_past_its_deadline(tmp_path):
+    """Steps of 0.3 s and a deadline 1.15 s away: after step 3 (at ~0.9 s) the next would end at ~1.2 s, so the
+    loop stops there, before its deadline (the rule 'stop after the step that ends past it' ran a fourth, to
+    ~1.2 s)."""
+    n, deadline, returned = _timed_loop(tmp_path, 0.3, 1.15)
+    assert 2 <= n <= 3 and returned <= deadline, (n, returned - deadline)
+
+
+def test_run_loop_runs_one_step_when_its_deadline_has_passed(tmp_path):
+    n, _, _ = _timed_loop(tmp_path / "late", 0.05, -1.0)
+    assert n == 1
