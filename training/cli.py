@@ -211,8 +211,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="set DiTConfig.walk_warp (eye heights per tick of a held movement key; 0 = off; needs the "
                         "camera warp): the warped previous latent also follows the walk")
     g.add_argument("--previous-skip", action="store_true",
-                   help="turn on DiTConfig.previous_skip (needs the camera warp): the velocity gets a gated "
-                        "x_t - warped previous latent, the gate starting at zero")
+                   help="turn on DiTConfig.previous_skip (needs the camera warp): the velocity gets gated "
+                        "x_t and warped previous latent terms, the gates starting at zero")
     g.add_argument("--out", required=True, help="the new model directory")
     g.set_defaults(func=cmd_action_conditioning)
     o = sub.add_parser("official-dit", help="a model's VAE and image encoder under a fresh DiT in the official "

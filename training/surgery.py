@@ -121,8 +121,8 @@ def with_action_conditioning(model: str | Path, dest: str | Path, mouse_input_ga
     * ``walk_warp``: sets ``DiTConfig.walk_warp`` (eye heights per tick; needs the camera warp, given or already
       on). The weights are kept: the function changes only where the movement keys are held, and fine-tuning
       teaches the DiT to read the walked warp;
-    * ``previous_skip=True``: turns on ``DiTConfig.previous_skip`` with its gate at zero (needs the camera warp,
-      given or already on); from a model that has it, its trained gate is kept.
+    * ``previous_skip=True``: turns on ``DiTConfig.previous_skip`` with its gates at zero (needs the camera warp,
+      given or already on); from a model that has it, its trained gates are kept.
     """
     base = WorldModel.load(model)
     old = base.config
@@ -135,7 +135,7 @@ def with_action_conditioning(model: str | Path, dest: str | Path, mouse_input_ga
     if previous_skip is not None:
         dit = dataclasses.replace(dit, previous_skip=bool(previous_skip))
     if old.dit.previous_skip and not dit.previous_skip:
-        raise ValueError(f"{model} was trained with previous_skip; dropping it would drop its trained skip gate")
+        raise ValueError(f"{model} was trained with previous_skip; dropping it would drop its trained skip gates")
     if old.dit.camera_warp_enabled and not dit.camera_warp_enabled:
         raise ValueError(f"{model} was trained with camera_warp={old.dit.camera_warp}; dropping it would drop its "
                          "patch embedding's trained warp rows")
@@ -147,7 +147,7 @@ def with_action_conditioning(model: str | Path, dest: str | Path, mouse_input_ga
         pad = [(0, 0)] * k.ndim
         pad[-2] = (0, cfg.patch_in_channels - old.patch_in_channels)
         pe.set_value(jnp.pad(k, pad))
-    if dit.previous_skip and not old.dit.previous_skip:  # the gate at zero, as a fresh model has it
+    if dit.previous_skip and not old.dit.previous_skip:  # the gates at zero, as a fresh model has them
         dit_state["skip_gate"] = nnx.state(skip_gate(cfg, nnx.Rngs(0)), nnx.Param)
     kernel = dit_state["blocks"]["action_model"]["mouse_mlp"]["layers"][0]["kernel"]
     kernel.set_value(rescaled_mouse_kernel(kernel.get_value(), old, action.mouse_input_gain))

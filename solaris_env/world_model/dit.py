@@ -697,12 +697,13 @@ class WorldDiT(nnx.Module):
         return self._output(tokens, e, x, base)
 
     def _output(self, tokens_BPFLD, e_BPFD, x, base) -> jax.Array:
-        """The head's velocity, plus the previous-frame skip g(t) * (x - base) where ``base`` is given."""
+        """The head's velocity, plus the previous-frame skip g_x(t) * x - g_b(t) * base where ``base`` is given."""
         v = self._unpatchify(self.head(tokens_BPFLD, e_BPFD))
         if base is None:
             return v
-        gate_BPF11C = self.skip_gate(jax.nn.silu(e_BPFD))[:, :, :, None, None, :]
-        return v + (gate_BPF11C * (x.astype(v.dtype) - base.astype(v.dtype))).astype(v.dtype)
+        gates_BPF11G = self.skip_gate(jax.nn.silu(e_BPFD))[:, :, :, None, None, :].astype(jnp.float32)
+        gx, gb = jnp.split(gates_BPF11G, 2, axis=-1)
+        return (v.astype(jnp.float32) + gx * x.astype(jnp.float32) - gb * base.astype(jnp.float32)).astype(v.dtype)
 
     def _unpatchify(self, y_BPFLO: jax.Array) -> jax.Array:
         """(B, P, F, h*w, pf*ph*pw*C) -> (B, P, F*pf, h*ph, w*pw, C), channels fastest."""
@@ -714,9 +715,10 @@ class WorldDiT(nnx.Module):
 
 
 def skip_gate(cfg: WorldModelConfig, rngs: nnx.Rngs) -> nnx.Module:
-    """The previous-frame skip's gate, Linear(dim -> latent channels) of silu(e), at zero: the untrained gate
-    leaves the velocity as the head's (docs/model.md §8.3)."""
-    return dense(cfg.dit.dim, cfg.out_channels, use_bias=True, kernel_init=nnx.initializers.zeros_init(), rngs=rngs,
+    """The previous-frame skip's two gates, Linear(dim -> 2 x latent channels) of silu(e): g_x on the noisy
+    latent (the first half of the outputs), g_b on the previous one; at zero, the untrained gates leave the
+    velocity as the head's (docs/model.md §8.3)."""
+    return dense(cfg.dit.dim, 2 * cfg.out_channels, use_bias=True, kernel_init=nnx.initializers.zeros_init(), rngs=rngs,
                  **_dtypes(cfg))
 
 

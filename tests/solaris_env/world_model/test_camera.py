@@ -271,15 +271,16 @@ def test_previous_skip_cached_rollout_equals_teacher_forcing_and_causal():
     _cached_rollout_agrees(cfg, model, inp)
 
 
-def test_previous_skip_adds_the_gated_difference_to_the_previous_latent():
-    """v(skip) - v(the same weights without it) = g(t) * (x - base): base is the previous latent (no turn, no walk:
-    the warp is the identity) where the mask is 0, the first-frame latent where it is 1; g = the gate's bias when
-    its kernel is zero."""
+def test_previous_skip_adds_the_gated_noisy_and_previous_latents():
+    """v(skip) - v(the same weights without it) = g_x(t) * x - g_b(t) * base: base is the previous latent (no
+    turn, no walk: the warp is the identity) where the mask is 0, the first-frame latent where it is 1; g_x, g_b =
+    the two halves of the gate's bias when its kernel is zero."""
     cfg, model, inp = _skipping(35)
     plain_cfg = cfg.replace(dit=dataclasses.replace(cfg.dit, previous_skip=False))
     plain = _build(plain_cfg, seed=35)
     nnx.update(plain, nnx.state(model).filter(lambda path, _: path[0] != "skip_gate"))
-    bias = jnp.linspace(-1.0, 2.0, cfg.out_channels)
+    bias_x, bias_b = jnp.linspace(-1.0, 2.0, cfg.out_channels), jnp.linspace(1.5, -0.5, cfg.out_channels)
+    bias = jnp.concatenate([bias_x, bias_b])
     model.skip_gate.kernel.set_value(jnp.zeros_like(model.skip_gate.kernel.get_value()))
     model.skip_gate.bias.set_value(bias)
     mask = jnp.zeros(inp["cond"].shape[:-1] + (1,)).at[:, :, 0].set(1.0)
@@ -291,11 +292,12 @@ def test_previous_skip_adds_the_gated_difference_to_the_previous_latent():
     fn = nnx.jit(lambda m, *a: m.forward_causal(*a, clean=clean))
     delta = fn(model, *args) - fn(plain, *args)
     prev = jnp.concatenate([first[:, :, :1], clean[:, :, :-1]], axis=2)
-    np.testing.assert_allclose(delta, bias * (inp["noisy"] - prev), atol=1e-4, rtol=1e-5)
+    np.testing.assert_allclose(delta, bias_x * inp["noisy"] - bias_b * prev, atol=1e-4, rtol=1e-5)
 
 
 def test_previous_skip_gate_learns_from_zero():
-    """At its zero initialisation the gate still gets a gradient (through x - base), so fine-tuning can open it."""
+    """At their zero initialisation both gates still get a gradient (through x and base), so fine-tuning can open
+    them."""
     cfg, model, inp = _skipping(36)
     model.skip_gate.kernel.set_value(jnp.zeros_like(model.skip_gate.kernel.get_value()))
     model.skip_gate.bias.set_value(jnp.zeros_like(model.skip_gate.bias.get_value()))
