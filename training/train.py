@@ -127,7 +127,9 @@ def run_loop(spec: LoopSpec, out: Path, state: Any, step_fn: Callable, draw_batc
     step is the last one (logged, checkpointed, sampled) when it ends past the deadline or when the next step,
     predicted to take as long as this one did (from the end of the previous step, its hooks included), would;
     the first step, whose time is mostly the JIT compile, is judged by the first rule only. At least one step
-    runs. ``ckpt_every`` / ``sample_every`` <= 0: no checkpoints / samples at all (``training.sprint``,
+    runs. With a deadline every step is waited for before the clock is read (JAX dispatches asynchronously,
+    and the host may run steps ahead of the device), so the host no longer prepares the next batch while the
+    device computes. ``ckpt_every`` / ``sample_every`` <= 0: no checkpoints / samples at all (``training.sprint``,
     which never resumes). ``on_step(state, step)`` runs after every step. Returns the final state.
     """
     from training.distributed import make_mesh, shard_batch, shard_train_state
@@ -151,6 +153,7 @@ def run_loop(spec: LoopSpec, out: Path, state: Any, step_fn: Callable, draw_batc
         done = step + 1
         last = done == spec.steps
         if not last and spec.deadline is not None:
+            jax.block_until_ready(metrics)  # dispatch is asynchronous: the clock must see the step done
             now = time.time()
             next_ends = now if step_ended is None else now + (now - step_ended)
             if next_ends >= spec.deadline:

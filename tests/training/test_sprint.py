@@ -192,7 +192,7 @@ def test_sprint_trains_while_the_engine_records_and_keeps_its_time(sprints):
         # within the budget (the final export follows within reserve_s), unless this machine took longer than the
         # stage's whole share to set up and take its first step (the cold JIT compile): then that step was its last
         overran_on_first_step = stage["steps"] == 1 and stage["first_step_s"] >= stage["share_s"]
-        assert lineage["training_wall_s"] <= lineage["budget_s"] or overran_on_first_step, stage
+        assert lineage["training_wall_s"] <= lineage["budget_s"] or overran_on_first_step, json.dumps(lineage)
         assert lineage["exports"][-1]["final"] and not any(e["final"] for e in lineage["exports"][:-1])
     assert len(a["exports"]) >= 2  # a periodic export (every 0.2 min) from the live train state, then the final
     assert a["platform"] == "cpu" and a["generation"] == 1 and a["init"]["lineage"] is None
