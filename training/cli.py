@@ -26,7 +26,6 @@ from pathlib import Path
 from solaris_env.cli_support import add_debug_flag, run_command
 from training.collect import collect_if_missing
 from training.stage_config import (
-    EXTRA_STAGES,
     STAGES,
     AllConfig,
     TrainingConfig,
@@ -158,7 +157,7 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--fsdp", action="store_true",
                        help="shard parameters and optimiser state over the devices (default: replicated)")
 
-    for stage in STAGES + EXTRA_STAGES:
+    for stage in STAGES:
         p = sub.add_parser(stage, help=f"train the {stage} stage")
         common(p)
         p.add_argument("--steps", type=int, default=None, help="number of updates (default: the stage config's)")

@@ -22,7 +22,6 @@ from training.config_files import read_json_config
 
 CONFIG_DIR = Path(__file__).parent / "configs"
 STAGES = ("vae", "vae-decoder", "sp", "mp-bidirectional", "mp-causal", "self-forcing")  # ``all``, in order
-EXTRA_STAGES = ("mp-rollout",)  # not part of ``all``: run by name
 ELASTIC_STAGES = ("sp", "mp-bidirectional", "mp-causal")  # may end early to keep ``all`` within its time budget
 COLLECT_WORLDS = ("flat", "normal", "mixed")  # ``solaris-engine collect --world``
 
@@ -148,7 +147,7 @@ class VAEStageConfig(VAEDecoderStageConfig):
 
 @dataclass(frozen=True, kw_only=True)
 class FlowStageConfig(StageConfig):
-    """``sp``, ``mp-bidirectional``, ``mp-causal``, ``mp-rollout``: flow matching of the DiT (``train.train_flow``).
+    """``sp``, ``mp-bidirectional``, ``mp-causal``: flow matching of the DiT (``train.train_flow``).
     ``lr_decay_steps``: a linear LR cool-down over the last N updates (``step.scheduled_lr``); ``ema_decay`` > 0:
     the stage saves that exponential moving average of the DiT's parameters. Both off: the spec's recipe."""
 
@@ -200,7 +199,7 @@ class AllConfig(_Block):
 
 STAGE_CONFIGS: dict[str, type[StageConfig]] = {
     "vae": VAEStageConfig, "vae-decoder": VAEDecoderStageConfig, "sp": FlowStageConfig,
-    "mp-bidirectional": FlowStageConfig, "mp-causal": FlowStageConfig, "mp-rollout": FlowStageConfig,
+    "mp-bidirectional": FlowStageConfig, "mp-causal": FlowStageConfig,
     "self-forcing": SelfForcingStageConfig}
 
 
@@ -208,7 +207,7 @@ STAGE_CONFIGS: dict[str, type[StageConfig]] = {
 class TrainingConfig:
     """A stage-config file: ``preset``, ``seed``, the ``collect`` block (None: ``all`` cannot record data), the
     ``all`` block (absent: its defaults, no budget) and ``stages`` ({stage: its block}; every stage of
-    ``STAGES``, ``EXTRA_STAGES`` optional)."""
+    ``STAGES``)."""
 
     preset: str
     stages: dict
@@ -222,7 +221,7 @@ class TrainingConfig:
         unknown = sorted(set(data) - set(top) - set(STAGE_CONFIGS))
         if unknown:
             raise ValueError(f"{where}: unknown keys {unknown}; expected {list(top)} and the stages "
-                             f"{list(STAGES + EXTRA_STAGES)}")
+                             f"{list(STAGES)}")
         missing = [s for s in ("preset", *STAGES) if s not in data]
         if missing:
             raise ValueError(f"{where}: missing keys {missing}")

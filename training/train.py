@@ -70,23 +70,19 @@ logger = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class FlowStage:
-    """A flow-matching DiT stage: its DiT entry point, noise type, the stage it starts from, its data, and
-    its objective (``flow_matching``: ``step.make_train_step``; ``rollout_regression``: the same loss with
-    the model's own rollout as the context, ``training.rollout_regression``)."""
+    """A flow-matching DiT stage (``step.make_train_step``): its DiT entry point, noise type, the stage it
+    starts from and its data."""
 
     entry_point: str
     noise_type: str
     init_from: str
     single_player: bool  # stage 1: VPT-layout single-player clips, player embedding frozen at zero
-    objective: str = "flow_matching"
 
 
 FLOW_STAGES = {
     "sp": FlowStage("forward_bidirectional", "standard", "vae-decoder", single_player=True),
     "mp-bidirectional": FlowStage("forward_bidirectional", "standard", "sp", single_player=False),
     "mp-causal": FlowStage("forward_causal", "diffusion_forcing", "mp-bidirectional", single_player=False),
-    "mp-rollout": FlowStage("forward_causal", "diffusion_forcing", "mp-causal", single_player=False,
-                            objective="rollout_regression"),
 }
 
 
@@ -461,11 +457,7 @@ def train_flow(stage: str, out: str | Path, data_dir: str | Path, sc: FlowStageC
     else:
         tx = adamw
     graphdef, state = TrainState.create(dit, tx, rng=seed, ema=ema_decay > 0)
-    if fs.objective == "rollout_regression":
-        from training.rollout_regression import make_rollout_regression_step
-        train_step = make_rollout_regression_step(graphdef, tx, ema_decay)
-    else:
-        train_step = make_train_step(graphdef, fs.entry_point, fs.noise_type, tx, ema_decay)
+    train_step = make_train_step(graphdef, fs.entry_point, fs.noise_type, tx, ema_decay)
     from training.latents import batch_spec, make_prepare_latents
 
     batch_size = local_batch_size(sc.batch_size)

@@ -132,16 +132,6 @@ def test_kill_9_then_resume_gives_the_same_losses(run, data, tmp_path):
         assert resumed[step] == pytest.approx(uninterrupted[step], rel=1e-6, abs=1e-7), step
 
 
-def test_rollout_regression_stage_runs_from_stage_3(run, data):
-    """``mp-rollout`` (not part of ``all``) fine-tunes the stage-3 model on its own rollouts."""
-    assert cli.main(["mp-rollout", "--preset", "test", "--data", str(data), "--out", str(run)]) == 0
-    steps = json.loads((REPO / "training" / "configs" / "test.json").read_text())["mp-rollout"]["steps"]
-    metrics = read_metrics(run / "mp-rollout" / "metrics.jsonl")
-    assert [m["step"] for m in metrics] == list(range(1, steps + 1))
-    assert all(m["loss"] > 0 and m["stage"] == "mp-rollout" for m in metrics)
-    assert (model_dir(run, "mp-rollout") / "config.json").is_file()
-
-
 def test_action_conditioning_rewrites_a_model_that_computes_the_same(run, tmp_path):
     """``solaris-train action-conditioning --mouse-gain``: the new config, the mouse rows rescaled, the same
     generated frames (within one grey level) for a turning rollout."""

@@ -14,7 +14,6 @@ from training.sprint import SprintConfig, stage_blocks
 from training.stage_config import (
     CONFIG_DIR,
     ELASTIC_STAGES,
-    EXTRA_STAGES,
     STAGE_CONFIGS,
     STAGES,
     AllConfig,
@@ -38,7 +37,7 @@ def test_every_shipped_config_validates_and_round_trips(preset):
     cfg = load_stage_config(preset)
     raw = read_json_config(CONFIG_DIR / f"{preset}.json")
     # "preset" names the model layout; a config that extends another (t16mix extends tiny16) trains its layout
-    assert cfg.preset == raw["preset"] and set(cfg.stages) == set(STAGES + EXTRA_STAGES)
+    assert cfg.preset == raw["preset"] and set(cfg.stages) == set(STAGES)
     if "extends" not in json.loads((CONFIG_DIR / f"{preset}.json").read_text()):
         assert cfg.preset == preset
     assert all(isinstance(cfg.stages[s], STAGE_CONFIGS[s]) for s in cfg.stages)
@@ -247,6 +246,6 @@ def test_the_collect_block_choices_match_the_engine():
 def test_the_stage_kinds_match_the_stage_functions():
     from training.train import FLOW_STAGES
 
-    assert set(STAGE_CONFIGS) == set(STAGES + EXTRA_STAGES)
+    assert set(STAGE_CONFIGS) == set(STAGES)
     assert {s for s, c in STAGE_CONFIGS.items() if c is FlowStageConfig} == set(FLOW_STAGES)
     assert STAGES[-1] == "self-forcing"  # ``all``'s last stage writes the final model

@@ -1,5 +1,5 @@
-"""``training.objectives``, ``training.step`` and ``training.rollout_regression``: flow-matching objectives
-and jitted train steps on the ``test`` preset (B=2, 5 frames -> F=2)."""
+"""``training.objectives`` and ``training.step``: flow-matching objectives and jitted train steps on the
+``test`` preset (B=2, 5 frames -> F=2)."""
 
 from __future__ import annotations
 
@@ -218,61 +218,6 @@ def test_train_step_keeps_the_parameter_ema(modules, batch):
         np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-6)
         np.testing.assert_array_equal(trained, ref)
     assert any(not np.allclose(a, b) for a, b in zip(jax.tree.leaves(state.ema), jax.tree.leaves(state.params)))
-
-
-# ---------------------------------------------------------------------------------------------
-# Rollout regression (training/rollout_regression.py)
-# ---------------------------------------------------------------------------------------------
-
-
-def test_rollout_regression_is_the_flow_loss_on_the_models_own_context(modules, batch):
-    """The loss is the Diffusion-Forcing flow-matching loss of the teacher-forcing pass whose clean half is
-    the model's own stop-gradient rollout (exit at the last sampler step), not the ground truth."""
-    from flax import nnx
-
-    from training.objectives import noisy_latents
-    from training.rollout_regression import rollout_regression_loss
-    from training.self_forcing import rollout
-
-    graphdef, params, rest = nnx.split(modules[0], nnx.Param, ...)
-    # perturb the zero-initialised output head so the prediction depends on the context
-    leaves, treedef = jax.tree.flatten(params)
-    keys = jax.random.split(jax.random.key(3), len(leaves))
-    params = jax.tree.unflatten(treedef, [x + 0.05 * jax.random.normal(k, x.shape, x.dtype) for x, k in zip(leaves, keys)])
-    key = jax.random.key(5)
-    loss = jax.jit(lambda p: rollout_regression_loss(graphdef, p, rest, batch, key))(params)
-
-    k_roll, k_t, k_noise = jax.random.split(key, 3)
-    cfg = modules[0].cfg
-    own = rollout(graphdef, params, rest, batch, k_roll, jnp.int32(len(cfg.sampler.ar_timesteps) - 1)).x0_BPFhwC
-    x0 = batch["x0"]
-    t = sample_timesteps(k_t, x0.shape[:3], "diffusion_forcing")
-    noise = jax.random.normal(k_noise, x0.shape)
-    dit = nnx.merge(graphdef, params, rest)
-
-    def manual(clean):
-        v = dit.forward_teacher_forcing(clean, noisy_latents(x0, noise, t), jnp.zeros(t.shape), t.astype(jnp.float32),
-                                        batch["cond"], batch["context"], batch["mouse"], batch["keyboard"])
-        return float(jnp.mean(jnp.square(v - (noise - x0))))
-
-    assert float(loss) == pytest.approx(manual(own), rel=1e-4)
-    assert float(loss) != pytest.approx(manual(x0), rel=1e-3)  # ground-truth context would give another loss
-
-
-def test_rollout_regression_step_trains_and_keeps_the_ema(modules, batch):
-    from training.rollout_regression import make_rollout_regression_step
-
-    tx = make_optimizer(LR)
-    graphdef, state = TrainState.create(modules[0], tx, rng=0, ema=True)
-    step = make_rollout_regression_step(graphdef, tx, ema_decay=0.9)
-    before = jax.tree.map(np.asarray, state.params)
-    state, metrics = step(state, batch)
-    host = check_finite(metrics, 0)
-    assert host["loss"] > 0 and host["grad_norm"] > 0 and int(state.step) == 1
-    assert any(not np.array_equal(a, b) for a, b in zip(jax.tree.leaves(before), jax.tree.leaves(state.params)))
-    decay = float(ema_decay_at(0.9, 0))
-    for e, b, p in zip(jax.tree.leaves(state.ema), jax.tree.leaves(before), jax.tree.leaves(state.params)):
-        np.testing.assert_allclose(e, b + (1 - decay) * (np.asarray(p) - b), rtol=1e-5, atol=1e-6)
 
 
 def test_a_step_compiled_ahead_is_not_compiled_again_by_the_loop():
