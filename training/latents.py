@@ -79,6 +79,10 @@ def vae_fingerprint(cfg: WorldModelConfig, vae_state) -> str:
     return f"{cfg.name}-{cfg.frame_height}x{cfg.frame_width}-{h.hexdigest()[:16]}"
 
 
+class EncodeStopped(Exception):
+    """``VideoEncoder`` was told to stop before the video was encoded (nothing is cached for it)."""
+
+
 class VideoEncoder:
     """Jitted streaming + per-anchor encoding of whole videos (fixed chunk shapes: one compile each)."""
 
@@ -102,10 +106,17 @@ class VideoEncoder:
 
     tensors = ("latents", "anchor_frames")  # what ``__call__`` returns, by name (the cache files' tensors)
 
-    def __call__(self, frames_THW3: np.ndarray) -> dict[str, np.ndarray]:
+    def __call__(self, frames_THW3: np.ndarray, stop: threading.Event | None = None) -> dict[str, np.ndarray]:
         """(N, H, W, 3) uint8 -> {"latents": (Ns, 2, h, w, C) f16 ([:, 0] stream latents, [:, 1] anchor
-        images), "anchor_frames": (Ns, H, W, 3) uint8 (frames 0, k, 2k, ...)}."""
+        images), "anchor_frames": (Ns, H, W, 3) uint8 (frames 0, k, 2k, ...)}. When ``stop`` is set, raises
+        ``EncodeStopped`` before the next chunk (a whole video takes seconds on a loaded CPU; a stage's
+        teardown waits for one chunk instead)."""
         k, c = self.k, STREAM_CHUNK_LATENTS
+
+        def check() -> None:
+            if stop is not None and stop.is_set():
+                raise EncodeStopped()
+
         n = len(frames_THW3)
         ns = 1 + (n - 1) // k
         usable = frames_THW3[: 1 + k * (ns - 1)]
@@ -115,6 +126,7 @@ class VideoEncoder:
         z, cache = self._first(self._state, jnp.asarray(head[None]))
         stream.append(np.asarray(z[0]))
         for start in range(1 + k * c, len(usable), k * c):
+            check()
             chunk = pad(usable[start:start + k * c], k * c)
             z, cache = self._next(self._state, jnp.asarray(chunk[None]), cache)
             stream.append(np.asarray(z[0]))
@@ -122,6 +134,7 @@ class VideoEncoder:
         anchors = usable[::k]
         images = []
         for start in range(0, len(anchors), IMAGE_BATCH):
+            check()
             batch = pad(anchors[start:start + IMAGE_BATCH], IMAGE_BATCH)
             images.append(np.asarray(self._image(self._state, jnp.asarray(batch))))
         images = np.concatenate(images)[:ns]
@@ -199,7 +212,8 @@ class LatentClips:
     def _cached_or_encoded(self, video: Path) -> dict[str, np.ndarray]:
         st = video.stat()
         source = self._canonical.get((st.st_dev, st.st_ino), video)
-        return self.cache.get_or_encode(source, self.encoder, self.dataset.frames.size)
+        encode = lambda frames: self.encoder(frames, stop=self._stop)  # noqa: E731 -- close() interrupts it
+        return self.cache.get_or_encode(source, encode, self.dataset.frames.size)
 
     def build(self, episode_ids=None, workers: int | None = None, until: float | None = None,
               stop: threading.Event | None = None) -> int:
@@ -240,6 +254,8 @@ class LatentClips:
         raises DECODE_ERROR for it, so a bad video is tried once, not at every draw)."""
         try:
             return self._cached_or_encoded(video)
+        except EncodeStopped:  # close(): not a failure, the video is encoded next time
+            return None
         except (EpisodeError, FileNotFoundError) as err:
             logger.warning("latent cache: %s not encoded: %s", video.name, err)
             self._failed[video] = str(err)
@@ -286,7 +302,8 @@ class LatentClips:
         self._background.start()
 
     def close(self) -> None:
-        """Stop the background encoder (the video in flight finishes; the cache files stay consistent)."""
+        """Stop the background encoder: the videos in flight stop at their next chunk and are not cached (the
+        cache files stay consistent); the thread is joined."""
         self._stop.set()
         if self._background is not None:
             self._background.join()

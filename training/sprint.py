@@ -625,14 +625,15 @@ class Sprint:
     def train_stage(self, stage: str, deadline: float) -> dict:
         """Train ``stage`` until ``deadline``; returns its lineage record: wall time, steps, when its first step
         ended (setup and JIT compile: seconds after the stage's start), the steps per second of its last logged
-        stretch, its last losses, the VAE stages' held-out PSNR (overall and per latent) and the data it saw."""
+        stretch, its last losses, its teardown (from the end of the last step: the background encoder stopped, the
+        model saved), the VAE stages' held-out PSNR (overall and per latent) and the data it saw."""
         from training.metrics import read_metrics
         from training.train import call_stage, stage_dir
 
         shutil.rmtree(stage_dir(self.run_dir, stage), ignore_errors=True)  # no stale checkpoints
         exportable = STAGES.index(stage) >= STAGES.index(self.cfg.export_from)
         t_start, n_streams = time.time(), len(STREAMS)
-        beat, first_step_at = [t_start], []
+        beat, first_step_at, last_step_at = [t_start], [], [t_start]
 
         def on_model(step: int, make_model) -> None:
             if exportable and self.exporter.due():
@@ -640,6 +641,7 @@ class Sprint:
             progress(step)
 
         def progress(step: int) -> None:
+            last_step_at[0] = time.time()
             if not first_step_at:
                 first_step_at.append(time.time())
             if time.time() - beat[0] >= HEARTBEAT_S:
@@ -662,8 +664,10 @@ class Sprint:
         held_out = {k: summary[k] for k in ("num_frames", "test_psnr_db", "test_psnr_by_latent_db") if k in summary}
         if "after" in summary:  # vae-decoder
             held_out.update(num_frames=summary["num_frames"], **summary["after"])
-        return {"status": "ran", "wall_s": round(time.time() - t_start, 1), "steps": last.get("step", 0),
+        end = time.time()
+        return {"status": "ran", "wall_s": round(end - t_start, 1), "steps": last.get("step", 0),
                 "first_step_s": round(first_step_at[0] - t_start, 1) if first_step_at else None,
+                "teardown_s": round(end - last_step_at[0], 1),  # after the last step: stop the encoder, save
                 "steps_per_s": last.get("steps_per_s"), "losses": {k: v for k, v in last.items() if k.endswith("loss")},
                 **({"held_out": held_out} if held_out else {}), "data": seen}
 

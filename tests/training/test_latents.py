@@ -178,6 +178,44 @@ def test_the_background_encoder_serves_ready_episodes_only_then_catches_up(root,
         clips.encode_in_background()
 
 
+def test_close_stops_the_video_in_flight_at_its_next_chunk_and_caches_nothing_for_it(root, cfg, modules, tmp_path):
+    """A stage's teardown must not wait for a whole video's encode (seconds on a loaded CPU: the sprint's stage
+    overran its share by that much): ``close()`` interrupts it between chunks; the video is not marked failed
+    and is encoded whole the next time."""
+    import threading
+    import time
+
+    from training.latents import EncodeStopped
+
+    dataset = DuetDataset(root, "train", obs_size=(32, 32))
+    clips = latent_clips(dataset, cfg, modules[1], tmp_path / "bg", canonical_dir=root / "duet")
+    encoder, in_flight, chunks = clips.encoder, threading.Event(), []
+    step = encoder._next
+
+    def slow_next(*args):
+        chunks.append(time.time())
+        in_flight.set()
+        time.sleep(0.5)
+        return step(*args)
+
+    encoder._next = slow_next
+    clips.encode_in_background(workers=1)
+    assert in_flight.wait(120)
+    t0 = time.time()
+    clips.close()
+    assert time.time() - t0 < 2.0 and not clips._background.is_alive()
+    assert len(chunks) <= 2, len(chunks)  # the chunk in flight (and at most one raced with close) ran
+    assert clips.num_ready == 0 and not clips._failed and list(clips.cache.dir.glob("*.safetensors")) == []
+    encoder._next = step
+    video = clips.pending()[0]
+    stop = threading.Event()
+    stop.set()
+    with pytest.raises(EncodeStopped):
+        encoder(read_frames(video, 0, None, (32, 32)), stop=stop)
+    again = latent_clips(dataset, cfg, modules[1], tmp_path / "bg", canonical_dir=root / "duet")
+    assert again.build(workers=1) == 2 * dataset.num_episodes  # nothing was lost: every video encodes whole
+
+
 def test_a_video_that_cannot_be_encoded_is_tried_once_and_its_draws_are_skipped(root, cfg, modules, tmp_path):
     from training.episodes import DECODE_ERROR
 
