@@ -1,5 +1,5 @@
 """Movement training types (docs/engine.md §5.3): walkLook, walkLookAway, straightLineWalk, chase, orbit, and
-our opt-in lookAround, panAround and approach. Goals far away (chase's 100 blocks) are clipped to the world's playable square."""
+our opt-in lookAround and approach. Goals far away (chase's 100 blocks) are clipped to the world's playable square."""
 
 from __future__ import annotations
 
@@ -95,72 +95,6 @@ def look_around(bot: Bot) -> Actions:
             yield from bot.look_at_player(bot.other, BOT_LOOK_DPS)
         else:
             yield from _look_around_segment(bot)
-
-
-# ---------------------------------------------------------------------------------------------
-# panAround (ours, opt-in): sustained turns for the world model
-# ---------------------------------------------------------------------------------------------
-
-PAN_TICKS = 720  # ~36 s per bot
-PAN_TICKS_PER_STEP = 4  # a segment holds one per-step turn, split over 4 ticks as the envs split a step's turn
-PAN_SEGMENT_STEPS = (8, 48)  # each segment holds one turn rate and one key set for this many steps
-PAN_YAW_DEG = (2.0, 20.0)  # |yaw| per step of a turning segment (0 in a share PAN_STILL_PROB of them)
-PAN_STILL_PROB = 0.15
-PAN_PITCH_PROB = 0.3  # a segment that also sweeps the pitch up and down ...
-PAN_PITCH_DEG = (2.0, 10.0)  # ... at this many degrees per step ...
-PAN_PITCH_MAX_DEG = 45.0  # ... turning back at +-this
-PAN_FACE_PROB = 0.12  # a segment that faces the partner and stands (the partner's own motion is in view)
-PAN_KEYS = ((), (), ("forward",), ("forward",), ("forward", "sprint"), ("back",), ("left",), ("right",),
-            ("jump",))
-
-
-def _step_turn_ticks(deg: float, ticks: int) -> list[float]:
-    """A step's turn in degrees -> the per-tick turns: up to the per-tick cap from the first tick on, the
-    envs' rule (``spaces.step_ticks``), so a pan in the data is tick for tick what an env step produces."""
-    cap = math.degrees(MAX_TURN_RAD)
-    out, rest = [], deg
-    for _ in range(ticks):
-        turn = rest if abs(rest) <= cap else math.copysign(cap, rest)
-        out.append(turn)
-        rest -= turn
-    return out
-
-
-def _pan_segment(bot: Bot) -> Actions:
-    """One segment: a constant yaw rate (degrees per step, quantised to the mouse grid) held for 8-48 steps,
-    with one key set held throughout, sometimes a pitch sweep bounded at +-45 deg."""
-    rng = bot.rng
-    steps = int(rng.integers(PAN_SEGMENT_STEPS[0], PAN_SEGMENT_STEPS[1] + 1))
-    keys = {k: 1 for k in PAN_KEYS[int(rng.integers(len(PAN_KEYS)))]}
-    grid = C.LOOK_STEP_DEG
-    yaw = 0.0 if rng.random() < PAN_STILL_PROB else rng.choice((-1.0, 1.0)) * rng.uniform(*PAN_YAW_DEG)
-    pitch = rng.choice((-1.0, 1.0)) * rng.uniform(*PAN_PITCH_DEG) if rng.random() < PAN_PITCH_PROB else 0.0
-    yaw, pitch = round(yaw / grid) * grid, round(pitch / grid) * grid
-    # on the model's step grid: latent frame n holds frames (records) k(n-1)+1 .. kn, and an env step turns
-    # from its first tick on
-    yield from bot.hold((1 - bot.game.tick) % PAN_TICKS_PER_STEP, **keys)
-    for _ in range(steps):
-        up = math.degrees(bot.me.pitch)
-        if pitch and abs(up + pitch) > PAN_PITCH_MAX_DEG:  # sweep back
-            pitch = -pitch
-        for dyaw, dpitch in zip(_step_turn_ticks(yaw, PAN_TICKS_PER_STEP), _step_turn_ticks(pitch, PAN_TICKS_PER_STEP)):
-            yield act((math.radians(dyaw), math.radians(dpitch)), **keys)
-
-
-def pan_around(bot: Bot) -> Actions:
-    """Both bots pan for ~36 s: camera turns held at one rate for 8-48 steps (2-20 deg per step, either way),
-    walking or standing, sometimes sweeping the pitch; now and then a segment facing the partner. Not a
-    reference type: the reference's bots turn for 2-5 steps at a time (at most 13 in 24 episodes of the default
-    mix), so a dream had never seen a turn that goes on."""
-    yield from bot.barrier("panAround")
-    yield from bot.look_at_player(bot.other, BOT_LOOK_DPS)
-    start = bot.game.tick
-    while bot.game.tick - start < PAN_TICKS:
-        if bot.rng.random() < PAN_FACE_PROB:
-            yield from bot.look_at_player(bot.other, BOT_LOOK_DPS)
-            yield from bot.idle(PAN_TICKS_PER_STEP * int(bot.rng.integers(*PAN_SEGMENT_STEPS)))
-        else:
-            yield from _pan_segment(bot)
 
 
 LOOK_AWAY_SPREAD_DEG = 90.0  # walkLookAway turns to yaw + 180 deg + U(-90, 90) deg
@@ -346,5 +280,4 @@ EPISODE_TYPES = (
     EpisodeSpec("walkLookAway", "Movement", 60, 10, 15, walk_look_away),
     EpisodeSpec("lookAround", "Movement", 30, 6, 12, look_around, in_default_mix=False),
     EpisodeSpec("approach", "Movement", 20, 6, 12, approach, in_default_mix=False),
-    EpisodeSpec("panAround", "Movement", 36, 6, 12, pan_around, in_default_mix=False),
 )

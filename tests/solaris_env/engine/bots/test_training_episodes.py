@@ -194,7 +194,7 @@ def test_sampled_type_uses_the_shared_rng():
 
 
 def test_look_around_is_opt_in():
-    assert registry.opt_in_training_types() == ["approach", "lookAround", "panAround"]
+    assert registry.opt_in_training_types() == ["approach", "lookAround"]
     assert "lookAround" not in registry.training_types() and "lookAround" not in registry.sampling_weights()
     assert registry.sampling_weights(["lookAround"]) == {"lookAround": 1.0}  # named: the only type sampled
 
@@ -215,49 +215,6 @@ def test_look_around_turns_often_at_varied_rates(world_kind):
         assert np.percentile(np.abs(yaw[turning]), 90) > 3 * np.percentile(np.abs(yaw[turning]), 10)
         assert np.count_nonzero(np.diff(turning.astype(int))) > 40  # onsets and stops
         assert max(abs(rec["pitch"]) for rec in recs) <= np.radians(30.0) + 0.2  # look_at_player may exceed a bit
-
-
-# ---------------------------------------------------------------------------------------------
-# panAround (ours, opt-in)
-# ---------------------------------------------------------------------------------------------
-
-
-def _runs(flags: np.ndarray) -> list[int]:
-    """Lengths of the runs of True in ``flags``."""
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], flags.astype(int), [0]])))
-    return list(edges[1::2] - edges[::2])
-
-
-@pytest.mark.parametrize("world_kind", WORLD_KINDS)
-def test_pan_around_holds_one_turn_rate_for_many_env_steps(world_kind):
-    """Per env step of 4 ticks (the envs' step), the yaw turn holds one rate for 8-48 steps at a time, split
-    over the ticks as ``spaces.step_ticks`` splits a step's turn; both directions, slow and fast rates; the
-    pitch sweeps stay within +-45 deg."""
-    from solaris_env.engine.bots.training_episodes.movement import PAN_TICKS_PER_STEP
-    from solaris_env.spaces import noop, step_ticks
-
-    out = _run("panAround", world_kind)
-    assert not out.aborted, out.abort_reason
-    assert registry.EPISODES["panAround"].in_default_mix is False
-    for recs in out.trace.records:
-        camera = np.array([rec["action"]["camera"] for rec in recs])  # Mineflayer (dyaw, dpitch) radians
-        assert np.abs(camera).max() <= MAX_CAMERA_RAD
-        k = PAN_TICKS_PER_STEP
-        camera = camera[1:]  # record t is video frame t; latent frame n holds frames k(n-1)+1 .. kn
-        n = len(camera) // k
-        ticks = np.degrees(camera[: n * k, 0].reshape(n, k))
-        per_step = ticks.sum(1)
-        # a pan step: its ticks are the envs' split of its turn (``spaces.step_ticks``: the per-tick cap from
-        # the first tick on), and its turn is the previous step's
-        split = np.array([[t["camera"][1] for t in step_ticks({**noop(), "camera": np.array([0.0, d], np.float32)},
-                                                                k)[0]] for d in per_step])
-        pan = (np.abs(ticks - split).max(1) < 1e-3) & (np.abs(per_step) > 1.0)
-        held = pan & np.concatenate([[False], np.abs(np.diff(per_step)) < 1e-3])
-        assert max(_runs(held)) >= 16  # one rate held for 16+ steps (the default mix: 13 at most, session 41)
-        rates = np.abs(per_step[held])
-        assert rates.min() < 6.0 and rates.max() > 12.0  # slow and fast
-        assert held.sum() > 0.3 * n  # most of the episode pans
-        assert max(abs(rec["pitch"]) for rec in recs) <= np.radians(45.0) + 0.2  # look_at_player may exceed a bit
 
 
 # ---------------------------------------------------------------------------------------------
