@@ -210,9 +210,12 @@ class LatentClips:
         return videos
 
     def _cached_or_encoded(self, video: Path) -> dict[str, np.ndarray]:
+        """The video's cache tensors. While the background encoder runs (the only time anything encodes then),
+        ``close()`` interrupts the encode before its next chunk (``EncodeStopped``); otherwise it finishes."""
         st = video.stat()
         source = self._canonical.get((st.st_dev, st.st_ino), video)
-        encode = lambda frames: self.encoder(frames, stop=self._stop)  # noqa: E731 -- close() interrupts it
+        stop = self._stop if self._background is not None else None
+        encode = lambda frames: self.encoder(frames, stop=stop)  # noqa: E731
         return self.cache.get_or_encode(source, encode, self.dataset.frames.size)
 
     def build(self, episode_ids=None, workers: int | None = None, until: float | None = None,
