@@ -643,7 +643,7 @@ class Sprint:
         def progress(step: int) -> None:
             last_step_at[0] = time.time()
             if not first_step_at:
-                first_step_at.append(time.time())
+                first_step_at.append(last_step_at[0])
             if time.time() - beat[0] >= HEARTBEAT_S:
                 beat[0] = time.time()
                 print(f"sprint: {stage}: step {step}, {beat[0] - t_start:.0f} s in, {deadline - beat[0]:.0f} s to "
