@@ -114,7 +114,8 @@ def cmd_with_vae(args) -> int:
 def cmd_action_conditioning(args) -> int:
     from training.surgery import with_action_conditioning
     dest = with_action_conditioning(args.model, args.out, args.mouse_gain, camera_warp=args.camera_warp,
-                                    walk_warp=args.walk_warp, previous_skip=args.previous_skip or None)
+                                    walk_warp=args.walk_warp, previous_skip=args.previous_skip or None,
+                                    warp_interp=args.warp_interp)
     print(f"wrote {dest}")
     return 0
 
@@ -212,6 +213,9 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--previous-skip", action="store_true",
                    help="turn on DiTConfig.previous_skip (needs the camera warp): the velocity gets gated "
                         "x_t and warped previous latent terms, the gates starting at zero")
+    g.add_argument("--warp-interp", choices=("linear", "cubic"), default=None,
+                   help="set DiTConfig.warp_interp, how the camera warp samples between latent pixels (the "
+                        "weights are kept; docs/model.md 8.1)")
     g.add_argument("--out", required=True, help="the new model directory")
     g.set_defaults(func=cmd_action_conditioning)
     o = sub.add_parser("official-dit", help="a model's VAE and image encoder under a fresh DiT in the official "

@@ -110,7 +110,8 @@ def with_vae(model: str | Path, vae_from: str | Path, dest: str | Path) -> Path:
 
 def with_action_conditioning(model: str | Path, dest: str | Path, mouse_input_gain: float | None = None,
                              camera_warp: tuple[float, float] | None = None,
-                             walk_warp: float | None = None, previous_skip: bool | None = None) -> Path:
+                             walk_warp: float | None = None, previous_skip: bool | None = None,
+                             warp_interp: str | None = None) -> Path:
     """Write ``model`` under another action conditioning, computing the same function (None keeps a setting):
 
     * ``mouse_input_gain``: the mouse rows of every ``mouse_mlp`` first kernel scaled by old / new gain, so
@@ -122,7 +123,9 @@ def with_action_conditioning(model: str | Path, dest: str | Path, mouse_input_ga
       on). The weights are kept: the function changes only where the movement keys are held, and fine-tuning
       teaches the DiT to read the walked warp;
     * ``previous_skip=True``: turns on ``DiTConfig.previous_skip`` with its gates at zero (needs the camera warp,
-      given or already on); from a model that has it, its trained gates are kept.
+      given or already on); from a model that has it, its trained gates are kept;
+    * ``warp_interp``: sets ``DiTConfig.warp_interp`` (how the camera warp samples between latent pixels); the
+      weights are kept, the function changes wherever the camera turns by a fraction of a latent pixel.
     """
     base = WorldModel.load(model)
     old = base.config
@@ -134,6 +137,8 @@ def with_action_conditioning(model: str | Path, dest: str | Path, mouse_input_ga
         dit = dataclasses.replace(dit, walk_warp=float(walk_warp))
     if previous_skip is not None:
         dit = dataclasses.replace(dit, previous_skip=bool(previous_skip))
+    if warp_interp is not None:
+        dit = dataclasses.replace(dit, warp_interp=warp_interp)
     if old.dit.previous_skip and not dit.previous_skip:
         raise ValueError(f"{model} was trained with previous_skip; dropping it would drop its trained skip gates")
     if old.dit.camera_warp_enabled and not dit.camera_warp_enabled:
@@ -158,13 +163,15 @@ def with_action_conditioning(model: str | Path, dest: str | Path, mouse_input_ga
 def official_dit(model: str | Path, dest: str | Path, seed: int = 0) -> Path:
     """Write ``model``'s VAE and image encoder, unchanged, with a freshly initialised DiT (``seed``) in the
     official layout to ``dest``: our DiT options at their official values (``DiTConfig.camera_warp``,
-    ``walk_warp`` and ``previous_skip`` off,
+    ``walk_warp`` and ``previous_skip`` off, ``warp_interp`` linear,
     ``ActionConfig.mouse_input_gain`` 1), every size as ``model``'s. Trained through the DiT stages with the
     same steps and data as ``model``'s DiT, it is the control that measures those options (docs/training.md,
     "The control row")."""
     base = WorldModel.load(model_directory(model))
     old = base.config
-    cfg = old.replace(dit=dataclasses.replace(old.dit, camera_warp=(0.0, 0.0), walk_warp=0.0, previous_skip=False),
+    dit = dataclasses.replace(old.dit, camera_warp=(0.0, 0.0), walk_warp=0.0, previous_skip=False,
+                              warp_interp="linear")
+    cfg = old.replace(dit=dit,
                       action=dataclasses.replace(old.action, mouse_input_gain=1.0))
     fresh_dit, _, _ = WorldModel.from_config(cfg, seed=seed).params
     _, vae_state, encoder_state = base.params

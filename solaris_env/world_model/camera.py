@@ -8,7 +8,7 @@ view's content right, looking up moves it down.
 ``frame_turns`` gives each latent frame's turn (the last ``k`` ticks of its action window are the ticks between
 latent frames i - 1 and i; docs/model.md §4.3), ``content_shift`` how far it moves the view's content (camera RoPE
 moves the token positions by minus that, ``rope.camera_increments``). ``shift_latents`` moves a latent frame's content by a fractional
-number of latent pixels (linear interpolation, edges repeated): ``DiTConfig.camera_warp`` feeds the previous
+number of latent pixels (linear or Catmull-Rom cubic interpolation, ``DiTConfig.warp_interp``; edges repeated): ``DiTConfig.camera_warp`` feeds the previous
 latent frame shifted by the frame's turn to the patch embedding, so following the camera is a copy of an input
 channel instead of a sub-token interpolation the DiT has to learn.
 """
@@ -36,29 +36,43 @@ def content_shift(turns_BPF2: jax.Array, pixels_per_degree: tuple[float, float])
     return jnp.stack([turns_BPF2[..., 1] * pixels_per_degree[0], turns_BPF2[..., 0] * pixels_per_degree[1]], axis=-1)
 
 
-def _shift_axis(x: jax.Array, shift: jax.Array, axis: int) -> jax.Array:
-    """out[i] = x[i - shift] along ``axis`` with linear interpolation, indices clamped (edges repeated).
+INTERPOLATIONS = ("linear", "cubic")  # how a warp samples between latent pixels (``DiTConfig.warp_interp``)
+
+
+def _cubic_weights(t: jax.Array) -> tuple:
+    """Catmull-Rom (Keys, a = -0.5) weights of the 4 taps at -1, 0, 1, 2 for a point t in [0, 1) past tap 0.
+    They sum to 1 and reproduce linear ramps; a repeated shift blurs far less than linear interpolation."""
+    t2, t3 = t * t, t * t * t
+    return (-0.5 * t3 + t2 - 0.5 * t, 1.5 * t3 - 2.5 * t2 + 1.0, -1.5 * t3 + 2.0 * t2 + 0.5 * t, 0.5 * t3 - 0.5 * t2)
+
+
+def _shift_axis(x: jax.Array, shift: jax.Array, axis: int, interp: str = "linear") -> jax.Array:
+    """out[i] = x[i - shift] along ``axis``, interpolated (``interp``), indices clamped (edges repeated).
     ``x`` (N, h, w, C), ``shift`` (N,)."""
     n = x.shape[axis]
     src = jnp.arange(n, dtype=jnp.float32)[None] - shift[:, None]  # (N, n)
     lo = jnp.floor(src)
     frac = src - lo
     lo = jnp.clip(lo.astype(jnp.int32), 0, n - 1)
-    hi = jnp.clip(lo + 1, 0, n - 1)
     shape = [x.shape[0], 1, 1, 1]
     shape[axis] = n
-    take = lambda idx: jnp.take_along_axis(x, idx.reshape(shape), axis=axis)
+    take = lambda idx: jnp.take_along_axis(x, jnp.clip(idx, 0, n - 1).reshape(shape), axis=axis)
     frac = frac.reshape(shape).astype(x.dtype)
-    return (1 - frac) * take(lo) + frac * take(hi)
+    if interp == "linear":
+        return (1 - frac) * take(lo) + frac * take(lo + 1)
+    if interp == "cubic":
+        w = _cubic_weights(frac)
+        return w[0] * take(lo - 1) + w[1] * take(lo) + w[2] * take(lo + 1) + w[3] * take(lo + 2)
+    raise ValueError(f"interp must be one of {INTERPOLATIONS}, got {interp!r}")
 
 
-def shift_latents(x_NhwC: jax.Array, shift_N2: jax.Array) -> jax.Array:
-    """Move each latent frame's content by (down, right) latent pixels (fractional: linear interpolation;
-    the uncovered border repeats the edge). Integer shifts inside the frame are exact."""
+def shift_latents(x_NhwC: jax.Array, shift_N2: jax.Array, interp: str = "linear") -> jax.Array:
+    """Move each latent frame's content by (down, right) latent pixels (fractional: linear or Catmull-Rom cubic
+    interpolation, ``interp``; the uncovered border repeats the edge). Integer shifts inside the frame are exact."""
     if x_NhwC.ndim != 4 or shift_N2.shape != (x_NhwC.shape[0], 2):
         raise ValueError(f"shift_latents takes x (N, h, w, C) and shift (N, 2); got {x_NhwC.shape}, {shift_N2.shape}")
     shift = shift_N2.astype(jnp.float32)
-    return _shift_axis(_shift_axis(x_NhwC, shift[:, 0], 1), shift[:, 1], 2)
+    return _shift_axis(_shift_axis(x_NhwC, shift[:, 0], 1, interp), shift[:, 1], 2, interp)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -63,6 +63,9 @@ class DiTConfig:
     # zero-initialised per-channel gate of the time embedding, so the DiT starts from "the frame is the
     # previous one, warped" and learns the change (docs/model.md §8.3). Needs the camera warp.
     previous_skip: bool = False
+    # How the camera warp samples between latent pixels: "linear", or "cubic" (Catmull-Rom), which blurs less
+    # when a rollout shifts its own frames step after step (``camera.shift_latents``; docs/model.md §8.1).
+    warp_interp: str = "linear"
 
     def __post_init__(self):
         _require(self.dim % self.num_heads == 0, f"dim={self.dim} must be divisible by num_heads={self.num_heads}")
@@ -74,6 +77,8 @@ class DiTConfig:
                  f"walk_warp must be a finite number >= 0 (eye heights per tick), got {self.walk_warp}")
         _require(self.walk_warp == 0.0 or self.camera_warp_enabled,
                  f"walk_warp={self.walk_warp} moves the camera warp's input; it needs camera_warp on")
+        _require(self.warp_interp in ("linear", "cubic"),
+                 f"warp_interp must be 'linear' or 'cubic', got {self.warp_interp!r}")
         _require(not self.previous_skip or self.camera_warp_enabled,
                  f"previous_skip={self.previous_skip} adds the camera warp's previous latent; it needs camera_warp on")
         _require(self.head_dim % 2 == 0, f"head_dim={self.head_dim} must be even for RoPE")

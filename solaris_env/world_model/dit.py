@@ -606,7 +606,7 @@ class WorldDiT(nnx.Module):
         if self.cfg.dit.walk_warp:
             moves = camera_lib.frame_moves(keyboard_BPFWA, self.cfg.frames_per_step) * self.cfg.dit.walk_warp
             flat = camera_lib.walk_latents(flat, moves.reshape(-1, 2))
-        return camera_lib.shift_latents(flat, shift.reshape(-1, 2)).reshape(prev_BPFhwC.shape)
+        return camera_lib.shift_latents(flat, shift.reshape(-1, 2), self.cfg.dit.warp_interp).reshape(prev_BPFhwC.shape)
 
     def _cached_previous(self, x, cache: kv_cache.DiTCache):
         """Previous latents of the F new frames of a cached pass: the cache's last frame, then x's own."""

@@ -216,6 +216,14 @@ def test_camera_warp_retrofit_computes_the_same(run, tmp_path):
         with_action_conditioning(src, tmp_path / "noskip", previous_skip=True)  # no camera warp to read
     with pytest.raises(ValueError, match="previous_skip"):
         with_action_conditioning(skip, tmp_path / "drop", previous_skip=False)
+    # the warp's interpolation is a config setting: the weights are kept, bit for bit
+    cubic = tmp_path / "cubic"
+    assert cli.main(["action-conditioning", str(skip), "--warp-interp", "cubic", "--out", str(cubic)]) == 0
+    cubist = WorldModel.load(cubic)
+    assert cubist.config.dit.warp_interp == "cubic" and skipper.config.dit.warp_interp == "linear"
+    assert cubist.config.replace(dit=skipper.config.dit) == skipper.config
+    assert all(np.array_equal(np.asarray(a), np.asarray(b))
+               for a, b in zip(jax.tree.leaves(cubist.params), jax.tree.leaves(skipper.params)))
 
 
 def test_self_forcing_stage_runs_from_stages_2_and_3(run, data):

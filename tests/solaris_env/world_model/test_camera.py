@@ -75,6 +75,27 @@ def test_shift_latents_moves_content_exactly_by_whole_pixels_and_interpolates_be
         camera_lib.shift_latents(x, jnp.zeros((2, 3)))
 
 
+def test_cubic_shift_is_exact_on_whole_pixels_and_ramps_and_blurs_less_when_repeated():
+    x = jax.random.normal(jax.random.key(3), (2, 5, 8, 3))
+    whole = jnp.asarray([[0.0, 2.0], [-1.0, 0.0]])
+    np.testing.assert_allclose(camera_lib.shift_latents(x, whole, "cubic"), camera_lib.shift_latents(x, whole),
+                               atol=1e-6)
+    ramp = jnp.broadcast_to(jnp.arange(8.0)[None, None, :, None], (1, 4, 8, 1))
+    out = camera_lib.shift_latents(ramp, jnp.asarray([[0.0, 0.3]]), "cubic")
+    np.testing.assert_allclose(out[0, :, 2:-1, 0], np.broadcast_to(np.arange(2, 7) - 0.3, (4, 5)), atol=1e-5)
+    noise = jax.random.normal(jax.random.key(4), (64, 1, 64, 1))
+    lin, cub = noise, noise
+    for _ in range(8):  # a turn of 0.57 latent pixels per step, shifted step after step
+        lin = camera_lib.shift_latents(lin, jnp.tile(jnp.asarray([[0.0, 0.57]]), (64, 1)))
+        cub = camera_lib.shift_latents(cub, jnp.tile(jnp.asarray([[0.0, 0.57]]), (64, 1)), "cubic")
+    inner = slice(8, None)  # away from the repeated edge
+    assert float(jnp.std(cub[:, :, inner])) > 1.25 * float(jnp.std(lin[:, :, inner]))
+    with pytest.raises(ValueError, match="interp"):
+        camera_lib.shift_latents(x, whole, "nearest")
+    with pytest.raises(ValueError, match="warp_interp"):
+        DiTConfig(camera_warp=(0.2, 0.1), warp_interp="nearest")
+
+
 def test_camera_warp_config_and_cache():
     with pytest.raises(ValueError, match="camera_warp"):
         DiTConfig(camera_warp=(float("nan"), 0.0))
