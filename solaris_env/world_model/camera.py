@@ -128,10 +128,10 @@ def walk_source(h: int, w: int, move_N2: jax.Array) -> tuple[jax.Array, jax.Arra
     return jnp.broadcast_to(rows, (move_N2.shape[0], h, w)), cols
 
 
-def walk_latents(x_NhwC: jax.Array, move_N2: jax.Array, interp: str = "linear") -> jax.Array:
+def walk_latents(x_NhwC: jax.Array, move_N2: jax.Array) -> jax.Array:
     """Each latent frame's content as seen after walking ``move_N2`` [forward, right] eye heights
-    (``walk_source``; bilinear or, ``interp="cubic"``, bicubic Catmull-Rom; indices clamped so the border repeats
-    the edge). A zero move returns the frame unchanged."""
+    (``walk_source``; bilinear, indices clamped so the border repeats the edge). A zero move returns the frame
+    unchanged."""
     if x_NhwC.ndim != 4 or move_N2.shape != (x_NhwC.shape[0], 2):
         raise ValueError(f"walk_latents takes x (N, h, w, C) and move (N, 2); got {x_NhwC.shape}, {move_N2.shape}")
     n, h, w, c = x_NhwC.shape
@@ -144,12 +144,7 @@ def walk_latents(x_NhwC: jax.Array, move_N2: jax.Array, interp: str = "linear") 
         idx = jnp.clip(r, 0, h - 1).astype(jnp.int32) * w + jnp.clip(col, 0, w - 1).astype(jnp.int32)
         return jnp.take_along_axis(flat, idx.reshape(n, h * w, 1), axis=1).reshape(n, h, w, c)
 
-    if interp == "cubic":
-        wr, wc = _cubic_weights(fr), _cubic_weights(fc)
-        out = sum(wr[i] * wc[j] * take(r0 + i - 1, c0 + j - 1) for i in range(4) for j in range(4))
-    else:
-        top = (1 - fc) * take(r0, c0) + fc * take(r0, c0 + 1)
-        bottom = (1 - fc) * take(r0 + 1, c0) + fc * take(r0 + 1, c0 + 1)
-        out = (1 - fr) * top + fr * bottom
+    top = (1 - fc) * take(r0, c0) + fc * take(r0, c0 + 1)
+    bottom = (1 - fc) * take(r0 + 1, c0) + fc * take(r0 + 1, c0 + 1)
     still = jnp.all(move_N2 == 0, axis=-1)[:, None, None, None]  # standing still returns x itself, bit for bit
-    return jnp.where(still, x_NhwC, out)
+    return jnp.where(still, x_NhwC, (1 - fr) * top + fr * bottom)

@@ -63,9 +63,8 @@ class DiTConfig:
     # zero-initialised per-channel gate of the time embedding, so the DiT starts from "the frame is the
     # previous one, warped" and learns the change (docs/model.md §8.3). Needs the camera warp.
     previous_skip: bool = False
-    # How the camera and walk warps sample between latent pixels: "linear", or "cubic" (Catmull-Rom), which blurs
-    # less when a rollout warps its own frames step after step (``camera.shift_latents``, ``walk_latents``;
-    # docs/model.md §8.1).
+    # How the camera warp samples between latent pixels: "linear", or "cubic" (Catmull-Rom), which blurs less
+    # when a rollout shifts its own frames step after step (``camera.shift_latents``; docs/model.md §8.1).
     warp_interp: str = "linear"
 
     def __post_init__(self):

@@ -605,7 +605,7 @@ class WorldDiT(nnx.Module):
         flat = prev_BPFhwC.reshape((-1,) + prev_BPFhwC.shape[3:]).astype(jnp.float32)
         if self.cfg.dit.walk_warp:
             moves = camera_lib.frame_moves(keyboard_BPFWA, self.cfg.frames_per_step) * self.cfg.dit.walk_warp
-            flat = camera_lib.walk_latents(flat, moves.reshape(-1, 2), self.cfg.dit.warp_interp)
+            flat = camera_lib.walk_latents(flat, moves.reshape(-1, 2))
         return camera_lib.shift_latents(flat, shift.reshape(-1, 2), self.cfg.dit.warp_interp).reshape(prev_BPFhwC.shape)
 
     def _cached_previous(self, x, cache: kv_cache.DiTCache):
