@@ -24,6 +24,7 @@ import sys
 from pathlib import Path
 
 from solaris_env.cli_support import add_debug_flag, run_command
+from solaris_env.world_model.config import WARP_INTERPOLATIONS
 from training.collect import collect_if_missing
 from training.stage_config import (
     STAGES,
@@ -213,7 +214,7 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--previous-skip", action="store_true",
                    help="turn on DiTConfig.previous_skip (needs the camera warp): the velocity gets gated "
                         "x_t and warped previous latent terms, the gates starting at zero")
-    g.add_argument("--warp-interp", choices=("linear", "cubic"), default=None,
+    g.add_argument("--warp-interp", choices=WARP_INTERPOLATIONS, default=None,
                    help="set DiTConfig.warp_interp, how the camera warp samples between latent pixels (the "
                         "weights are kept; docs/model.md 8.1)")
     g.add_argument("--out", required=True, help="the new model directory")

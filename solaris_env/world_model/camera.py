@@ -6,11 +6,11 @@ Mouse convention (``spaces.env_action_to_model_vector``, Mineflayer signs): the 
 view's content right, looking up moves it down.
 
 ``frame_turns`` gives each latent frame's turn (the last ``k`` ticks of its action window are the ticks between
-latent frames i - 1 and i; docs/model.md §4.3), ``content_shift`` how far it moves the view's content (camera RoPE
-moves the token positions by minus that, ``rope.camera_increments``). ``shift_latents`` moves a latent frame's content by a fractional
-number of latent pixels (linear or Catmull-Rom cubic interpolation, ``DiTConfig.warp_interp``; edges repeated): ``DiTConfig.camera_warp`` feeds the previous
-latent frame shifted by the frame's turn to the patch embedding, so following the camera is a copy of an input
-channel instead of a sub-token interpolation the DiT has to learn.
+latent frames i - 1 and i; docs/model.md §4.3), ``content_shift`` how far it moves the view's content.
+``shift_latents`` moves a latent frame's content by a fractional number of latent pixels (linear or Catmull-Rom
+cubic interpolation, ``DiTConfig.warp_interp``, of the frame extended by repeating its edges):
+``DiTConfig.camera_warp`` feeds the previous latent frame shifted by the frame's turn to the patch embedding, so
+following the camera is a copy of an input channel instead of a sub-token interpolation the DiT has to learn.
 """
 
 from __future__ import annotations
@@ -21,6 +21,7 @@ import jax
 import jax.numpy as jnp
 
 from solaris_env.spaces import CAMERA_SCALE_DEG, MODEL_INDEX
+from solaris_env.world_model.config import WARP_INTERPOLATIONS
 
 
 def frame_turns(mouse_BPFWA: jax.Array, frames_per_step: int) -> jax.Array:
@@ -36,9 +37,6 @@ def content_shift(turns_BPF2: jax.Array, pixels_per_degree: tuple[float, float])
     return jnp.stack([turns_BPF2[..., 1] * pixels_per_degree[0], turns_BPF2[..., 0] * pixels_per_degree[1]], axis=-1)
 
 
-INTERPOLATIONS = ("linear", "cubic")  # how a warp samples between latent pixels (``DiTConfig.warp_interp``)
-
-
 def _cubic_weights(t: jax.Array) -> tuple:
     """Catmull-Rom (Keys, a = -0.5) weights of the 4 taps at -1, 0, 1, 2 for a point t in [0, 1) past tap 0.
     They sum to 1 and reproduce linear ramps; a repeated shift blurs far less than linear interpolation."""
@@ -47,13 +45,14 @@ def _cubic_weights(t: jax.Array) -> tuple:
 
 
 def _shift_axis(x: jax.Array, shift: jax.Array, axis: int, interp: str = "linear") -> jax.Array:
-    """out[i] = x[i - shift] along ``axis``, interpolated (``interp``), indices clamped (edges repeated).
+    """out[i] = x[i - shift] along ``axis``, interpolated (``interp``) on the signal extended by repeating its
+    edges: each tap's index is clamped, so a point in the uncovered border is exactly the edge value.
     ``x`` (N, h, w, C), ``shift`` (N,)."""
     n = x.shape[axis]
     src = jnp.arange(n, dtype=jnp.float32)[None] - shift[:, None]  # (N, n)
     lo = jnp.floor(src)
     frac = src - lo
-    lo = jnp.clip(lo.astype(jnp.int32), 0, n - 1)
+    lo = lo.astype(jnp.int32)  # not clamped here: clamping before the taps would mix the edge with inner pixels
     shape = [x.shape[0], 1, 1, 1]
     shape[axis] = n
     take = lambda idx: jnp.take_along_axis(x, jnp.clip(idx, 0, n - 1).reshape(shape), axis=axis)
@@ -63,7 +62,7 @@ def _shift_axis(x: jax.Array, shift: jax.Array, axis: int, interp: str = "linear
     if interp == "cubic":
         w = _cubic_weights(frac)
         return w[0] * take(lo - 1) + w[1] * take(lo) + w[2] * take(lo + 1) + w[3] * take(lo + 2)
-    raise ValueError(f"interp must be one of {INTERPOLATIONS}, got {interp!r}")
+    raise ValueError(f"interp must be one of {WARP_INTERPOLATIONS}, got {interp!r}")
 
 
 def shift_latents(x_NhwC: jax.Array, shift_N2: jax.Array, interp: str = "linear") -> jax.Array:

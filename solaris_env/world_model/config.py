@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 MULTIPLAYER_METHODS = ("attn", "concat")
 COND_ENCODINGS = ("video", "image")
 VAE_CODECS = ("wan", "linear_patch")
+WARP_INTERPOLATIONS = ("linear", "cubic")  # how the camera warp samples between latent pixels (DiTConfig.warp_interp)
 
 
 def _require(cond: bool, msg: str) -> None:
@@ -77,8 +78,8 @@ class DiTConfig:
                  f"walk_warp must be a finite number >= 0 (eye heights per tick), got {self.walk_warp}")
         _require(self.walk_warp == 0.0 or self.camera_warp_enabled,
                  f"walk_warp={self.walk_warp} moves the camera warp's input; it needs camera_warp on")
-        _require(self.warp_interp in ("linear", "cubic"),
-                 f"warp_interp must be 'linear' or 'cubic', got {self.warp_interp!r}")
+        _require(self.warp_interp in WARP_INTERPOLATIONS,
+                 f"warp_interp must be one of {WARP_INTERPOLATIONS}, got {self.warp_interp!r}")
         _require(not self.previous_skip or self.camera_warp_enabled,
                  f"previous_skip={self.previous_skip} adds the camera warp's previous latent; it needs camera_warp on")
         _require(self.head_dim % 2 == 0, f"head_dim={self.head_dim} must be even for RoPE")

@@ -96,6 +96,28 @@ def test_cubic_shift_is_exact_on_whole_pixels_and_ramps_and_blurs_less_when_repe
         DiTConfig(camera_warp=(0.2, 0.1), warp_interp="nearest")
 
 
+@pytest.mark.parametrize("interp", ["linear", "cubic"])
+@pytest.mark.parametrize("shift", [0.3, 0.7, 1.6, -0.4, -1.5, 2.0])
+def test_shift_interpolates_the_signal_extended_by_its_edges(interp, shift):
+    """A shift reads the frame as if its edge pixels repeated outward forever, so the strip a shift uncovers is
+    the edge value (where the kernel sees only the extension), never the edge mixed with the wrong weights."""
+    x = np.asarray(jax.random.normal(jax.random.key(5), (1, 3, 9, 2)))
+    out = np.asarray(camera_lib.shift_latents(jnp.asarray(x), jnp.asarray([[0.0, shift]]), interp))
+    pad = 4
+    ext = np.concatenate([np.repeat(x[:, :, :1], pad, 2), x, np.repeat(x[:, :, -1:], pad, 2)], axis=2)
+    src = np.arange(9) - shift + pad  # where each output column reads, in the extended signal
+    lo = np.floor(src).astype(int)
+    t = (src - lo)[None, None, :, None]
+    if interp == "linear":
+        ref = (1 - t) * ext[:, :, lo] + t * ext[:, :, lo + 1]
+    else:
+        w = camera_lib._cubic_weights(t)
+        ref = sum(float_w * ext[:, :, lo + k - 1] for k, float_w in enumerate(np.asarray(w)))
+    np.testing.assert_allclose(out, ref, atol=1e-5)
+    edge = np.arange(9) - shift <= (0 if interp == "linear" else -1)  # the kernel reads only the left extension
+    np.testing.assert_allclose(out[0][:, edge], np.broadcast_to(x[0][:, :1], out[0][:, edge].shape), atol=1e-6)
+
+
 def test_camera_warp_config_and_cache():
     with pytest.raises(ValueError, match="camera_warp"):
         DiTConfig(camera_warp=(float("nan"), 0.0))
