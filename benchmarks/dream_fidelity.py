@@ -746,11 +746,54 @@ def dream_rollout(env, rollout: Rollout) -> np.ndarray:
 # =============================================================================================
 
 
+FORMULA = "formula:warp"  # the reference row of the warps' formulas alone (``WarpFormula``)
+
+
+class WarpFormula:
+    """A reference row, not a world model: each frame is the previous one moved by the formulas the shipped
+    model feeds its DiT (``DiTConfig.walk_warp``, then ``camera_warp``, with its ``warp_interp``), applied to
+    pixels from the engine's true first frame. It shows what the geometry alone gives on each program and
+    metric (a turn's new view is the edge repeated, the partner never moves, the HUD moves with the view), so
+    the model's rows can be read against it (docs/evaluation.md). Spec ``formula:warp``."""
+
+    def __init__(self, cfg):
+        if not cfg.dit.camera_warp_enabled:
+            raise ValueError(f"{FORMULA}: the shipped model's config has no camera warp to replay")
+        self.cfg = cfg
+        self.frame_shape = (cfg.frame_height, cfg.frame_width, 3)
+        self.frames_per_step = cfg.frames_per_step
+        scale = (cfg.frame_height / cfg.latent_height, cfg.frame_width / cfg.latent_width)
+        self.pixels_per_degree = (cfg.dit.camera_warp[0] * scale[0], cfg.dit.camera_warp[1] * scale[1])
+
+    def rollout(self, rollout: Rollout) -> np.ndarray:
+        """(T + 1, H, W, 3) uint8: the engine's first frame, then each step's frame warped from the last."""
+        import jax.numpy as jnp
+
+        from solaris_env.dream_env import expand_action
+        from solaris_env.world_model import camera
+
+        k, kb, dit = self.frames_per_step, self.cfg.action.keyboard_dim, self.cfg.dit
+        frames, pending = [rollout.engine_THW3[0]], None
+        for step in rollout.actions:
+            ticks_kA, pending = expand_action(step[LEARNER], k, pending, LEARNER)
+            ticks = jnp.asarray(ticks_kA)[None, None, None]  # (1, 1, 1, k, 25): one frame's action window
+            x = jnp.asarray(frames[-1], jnp.float32)[None]
+            if dit.walk_warp:
+                x = camera.walk_latents(x, camera.frame_moves(ticks[..., :kb], k).reshape(1, 2) * dit.walk_warp)
+            shift = camera.content_shift(camera.frame_turns(ticks[..., kb:], k), self.pixels_per_degree)
+            x = camera.shift_latents(x, shift.reshape(1, 2), dit.warp_interp)
+            frames.append(np.clip(np.rint(np.asarray(x[0])), 0, 255).astype(np.uint8))
+        return np.stack(frames)
+
+
 def model_label(spec: str) -> str:
-    """The name in the results of a model spec (``"default"``, ``"PATH"`` or ``"preset:NAME"``: random init,
-    smoke runs): ``shipped default``, a repository-relative path, never absolute."""
+    """The name in the results of a model spec (``"default"``, ``"PATH"``, ``"preset:NAME"``: random init,
+    smoke runs, or ``formula:warp``, ``WarpFormula``): ``shipped default``, a repository-relative path, never
+    absolute."""
     if spec == "default":
         return "shipped default"
+    if spec == FORMULA:
+        return "formula: the default's warps alone, no model"
     if spec.startswith("preset:"):
         return f"preset {spec.split(':', 1)[1]} (random init)"
     return portable_path(spec, parts=3)  # outside the repository: its last three components only
@@ -762,6 +805,8 @@ def load_model(spec: str):
 
     if spec == "default":
         return build_model(None, None, num_players=2)
+    if spec == FORMULA:
+        return WarpFormula(build_model(None, None, num_players=2).config)
     if spec.startswith("preset:"):
         return build_model(None, spec.split(":", 1)[1], num_players=2)
     return build_model(spec, None, num_players=2)
@@ -1142,10 +1187,10 @@ def run(model_specs: Sequence[str], program_names: Sequence[str], setup: Setup, 
     results, shown = {}, {id(r): {} for r in showcase(rollouts)}
     for label, model in models.items():
         t0 = time.perf_counter()
-        denv = DreamParallelEnv(model=model, max_steps=10**6)
+        denv = None if isinstance(model, WarpFormula) else DreamParallelEnv(model=model, max_steps=10**6)
         dreams = []
         for r in rollouts:
-            frames = dream_rollout(denv, r)
+            frames = model.rollout(r) if denv is None else dream_rollout(denv, r)
             dreams.append(frames)
             if id(r) in shown:
                 shown[id(r)][label] = frames
@@ -1245,8 +1290,9 @@ def print_tables(result: dict) -> None:
 def main(argv: list[str] | None = None) -> dict:
     p = argparse.ArgumentParser(prog="python -m benchmarks.dream_fidelity", description=__doc__.split("\n\n")[0])
     p.add_argument("--model", action="append", default=None,
-                   help="a model: 'default' (the shipped one), a checkpoint directory, or 'preset:NAME' (random "
-                        "init, smoke runs). Repeat to compare models on the same engine rollouts (default: default)")
+                   help="a model: 'default' (the shipped one), a checkpoint directory, 'preset:NAME' (random "
+                        "init, smoke runs) or 'formula:warp' (the default's warps alone, a reference row). Repeat "
+                        "to compare models on the same engine rollouts (default: default)")
     p.add_argument("--programs", nargs="+", default=list(PROGRAMS), metavar="NAME",
                    help=f"action programs (default: all): {' '.join(PROGRAMS)}")
     p.add_argument("--quick", action="store_true",

@@ -239,9 +239,38 @@ def test_assign_states_puts_a_normal_world_first_and_partner_programs_in_view():
 
 def test_model_specs_and_labels_never_absolute():
     assert df.model_label("default") == "shipped default"
+    assert df.model_label(df.FORMULA) == "formula: the default's warps alone, no model"
     assert df.model_label("preset:test") == "preset test (random init)"
     assert df.model_label(str(df.REPO / "runs" / "a" / "model")) == "runs/a/model"
     assert not df.model_label("/somewhere/else/runs/b/model").startswith("/")
+
+
+def test_warp_formula_replays_the_warps_on_pixels():
+    """The reference row: standing still keeps the frame bit for bit, a right turn moves the content left by
+    the camera warp's pixels per degree, walking forward magnifies the view about its centre."""
+    from solaris_env.world_model.config import WorldModelConfig
+
+    cfg = WorldModelConfig.tiny16()
+    formula = df.WarpFormula(cfg)
+    assert formula.pixels_per_degree == pytest.approx((cfg.dit.camera_warp[0] * 4, cfg.dit.camera_warp[1] * 4))
+    yy, xx = np.mgrid[0:64, 0:64]
+    first = np.stack([(xx * 4) % 256, (yy * 4) % 256, (xx * yy) % 256], -1).astype(np.uint8)
+    yaw = 2.0 / formula.pixels_per_degree[1]  # a right turn that moves the content 2 pixels left
+    actions = [{df.LEARNER: df.make_action(), df.PARTNER: df.make_action()},
+               {df.LEARNER: df.make_action(camera=(0.0, yaw)), df.PARTNER: df.make_action()},
+               {df.LEARNER: df.make_action(forward=1), df.PARTNER: df.make_action()}]
+    rollout = df.Rollout("test", "learner", 0, None, "grass", False, 0, actions, first[None], np.zeros(1),
+                         [None], np.zeros((1, 2)))
+    frames = formula.rollout(rollout)
+    assert frames.shape == (4, 64, 64, 3) and frames.dtype == np.uint8
+    np.testing.assert_array_equal(frames[1], first)
+    np.testing.assert_allclose(frames[2][:, :-2].astype(float), first[:, 2:].astype(float), atol=1)
+    np.testing.assert_array_equal(frames[2][:, -2:], np.repeat(first[:, -1:], 2, axis=1))  # the edge repeated
+    centre = frames[3][28:36, 28:36].astype(float)
+    assert np.abs(frames[3].astype(float) - frames[2].astype(float)).mean() > 1.0
+    assert np.abs(np.diff(centre, axis=1)).mean() < np.abs(np.diff(frames[2][28:36, 28:36].astype(float), axis=1)).mean()
+    with pytest.raises(ValueError, match="camera warp"):
+        df.WarpFormula(WorldModelConfig.test())
 
 
 # ---------------------------------------------------------------------------------------------
