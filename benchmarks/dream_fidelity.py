@@ -776,12 +776,9 @@ class WarpFormula:
         frames, pending = [rollout.engine_THW3[0]], None
         for step in rollout.actions:
             ticks_kA, pending = expand_action(step[LEARNER], k, pending, LEARNER)
-            ticks = jnp.asarray(ticks_kA)[None, None, None]  # (1, 1, 1, k, 25): one frame's action window
-            x = jnp.asarray(frames[-1], jnp.float32)[None]
-            if dit.walk_warp:
-                x = camera.walk_latents(x, camera.frame_moves(ticks[..., :kb], k).reshape(1, 2) * dit.walk_warp)
-            shift = camera.content_shift(camera.frame_turns(ticks[..., kb:], k), self.pixels_per_degree)
-            x = camera.shift_latents(x, shift.reshape(1, 2), dit.warp_interp)
+            ticks = jnp.asarray(ticks_kA)[None]  # (1, k, 25): one frame's action window
+            x = camera.warp_previous(jnp.asarray(frames[-1])[None], ticks[..., kb:], ticks[..., :kb], k,
+                                     self.pixels_per_degree, dit.walk_warp, dit.warp_interp)
             frames.append(np.clip(np.rint(np.asarray(x[0])), 0, 255).astype(np.uint8))
         return np.stack(frames)
 

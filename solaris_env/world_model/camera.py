@@ -147,3 +147,19 @@ def walk_latents(x_NhwC: jax.Array, move_N2: jax.Array) -> jax.Array:
     bottom = (1 - fc) * take(r0 + 1, c0) + fc * take(r0 + 1, c0 + 1)
     still = jnp.all(move_N2 == 0, axis=-1)[:, None, None, None]  # standing still returns x itself, bit for bit
     return jnp.where(still, x_NhwC, (1 - fr) * top + fr * bottom)
+
+
+# ---------------------------------------------------------------------------------------------
+# Both warps together (the DiT's warp input; ``benchmarks.dream_fidelity.WarpFormula`` on pixels)
+# ---------------------------------------------------------------------------------------------
+
+
+def warp_previous(prev_NhwC: jax.Array, mouse_NWA: jax.Array, keyboard_NWK: jax.Array, frames_per_step: int,
+                  pixels_per_degree: tuple[float, float], walk_warp: float, interp: str) -> jax.Array:
+    """Each frame moved by its action window: by its walk (``walk_latents``, ``walk_warp`` eye heights per tick;
+    0 = no walk), then by its camera turn (``shift_latents``). ``prev_NhwC`` float, one action window per frame."""
+    x = prev_NhwC.astype(jnp.float32)
+    if walk_warp:
+        x = walk_latents(x, frame_moves(keyboard_NWK, frames_per_step) * walk_warp)
+    return shift_latents(x, content_shift(frame_turns(mouse_NWA, frames_per_step), pixels_per_degree), interp)
+

@@ -600,13 +600,12 @@ class WorldDiT(nnx.Module):
         camera turn (``camera_warp``)."""
         if prev_BPFhwC is None:
             raise ValueError("camera_warp is on but no previous latents were given")
-        turns = camera_lib.frame_turns(mouse_BPFWA, self.cfg.frames_per_step)
-        shift = camera_lib.content_shift(turns, self.cfg.dit.camera_warp)  # (B, P, F, 2)
-        flat = prev_BPFhwC.reshape((-1,) + prev_BPFhwC.shape[3:]).astype(jnp.float32)
-        if self.cfg.dit.walk_warp:
-            moves = camera_lib.frame_moves(keyboard_BPFWA, self.cfg.frames_per_step) * self.cfg.dit.walk_warp
-            flat = camera_lib.walk_latents(flat, moves.reshape(-1, 2))
-        return camera_lib.shift_latents(flat, shift.reshape(-1, 2), self.cfg.dit.warp_interp).reshape(prev_BPFhwC.shape)
+        lead = prev_BPFhwC.shape[:3]
+        flat = lambda a: a.reshape((-1,) + a.shape[3:])
+        dit = self.cfg.dit
+        return camera_lib.warp_previous(flat(prev_BPFhwC), flat(mouse_BPFWA), flat(keyboard_BPFWA),
+                                        self.cfg.frames_per_step, dit.camera_warp, dit.walk_warp,
+                                        dit.warp_interp).reshape(lead + prev_BPFhwC.shape[3:])
 
     def _cached_previous(self, x, cache: kv_cache.DiTCache):
         """Previous latents of the F new frames of a cached pass: the cache's last frame, then x's own."""
