@@ -731,9 +731,10 @@ def engine_rollout(env, program: Program, start, state_index: int, surface: str,
                    us, np.asarray(views, np.float64))
 
 
-def dream_rollout(env, rollout: Rollout) -> np.ndarray:
-    """(T + 1, H, W, 3) uint8: the learner's dream observations from the same start with the same actions."""
-    obs, _ = env.reset(seed=rollout.seed, options={"engine_state": rollout.start})
+def dream_rollout(env, rollout: Rollout, dream_seed: int = 0) -> np.ndarray:
+    """(T + 1, H, W, 3) uint8: the learner's dream observations from the same start with the same actions;
+    ``dream_seed`` moves the dream's sampling noise only (``--dream-seed``: the metrics' noise floor)."""
+    obs, _ = env.reset(seed=rollout.seed + dream_seed, options={"engine_state": rollout.start})
     frames = [obs[LEARNER]]
     for step in rollout.actions:
         obs, *_ = env.step(step)
@@ -1101,6 +1102,7 @@ class Setup:
     per_long_program: int = 2  # start states of random play
     steps: int | None = None  # cap every program at this many steps (smoke runs)
     start_seed: int = START_SEED
+    dream_seed: int = 0  # added to every dream rollout's reset seed: other sampling noise, the same engine rollouts
 
 
 QUICK = Setup(per_world=1, per_program=2, per_long_program=1, steps=None)
@@ -1187,7 +1189,7 @@ def run(model_specs: Sequence[str], program_names: Sequence[str], setup: Setup, 
         denv = None if isinstance(model, WarpFormula) else DreamParallelEnv(model=model, max_steps=10**6)
         dreams = []
         for r in rollouts:
-            frames = model.rollout(r) if denv is None else dream_rollout(denv, r)
+            frames = model.rollout(r) if denv is None else dream_rollout(denv, r, setup.dream_seed)
             dreams.append(frames)
             if id(r) in shown:
                 shown[id(r)][label] = frames
@@ -1205,7 +1207,7 @@ def run(model_specs: Sequence[str], program_names: Sequence[str], setup: Setup, 
         "setup": {
             "models": [{"spec": spec, "name": model_label(spec)} for spec in model_specs],
             "frame_size": [height, width], "frames_per_step": k, "quick": quick,
-            "start_seed": setup.start_seed, "per_world": setup.per_world, "per_program": setup.per_program,
+            "start_seed": setup.start_seed, "dream_seed": setup.dream_seed, "per_world": setup.per_world, "per_program": setup.per_program,
             "per_long_program": setup.per_long_program,
             "start_states": [s.describe() for s in states],
             "programs": {p.name: {"steps": p.steps, "kind": p.kind, "doc": p.doc, "start_states": assignment[p.name]}
@@ -1298,12 +1300,17 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--steps", type=int, default=None, help="cap every program at this many steps")
     p.add_argument("--per-program", type=int, default=None, help="start states per 64-step program (default 3)")
     p.add_argument("--start-seed", type=int, default=START_SEED, help="first reset seed of the start states")
+    p.add_argument("--dream-seed", type=int, default=0,
+                   help="added to each dream rollout's reset seed: the same engine rollouts under other sampling "
+                        "noise, to measure how far the metrics move by chance (default 0)")
     p.add_argument("--out", default=str(RESULTS), help="the JSON; the .png and .mp4 go next to it")
     args = p.parse_args(argv)
     specs = args.model or ["default"]
     setup = QUICK if args.quick else Setup()
+    if args.dream_seed < 0:
+        raise ValueError(f"--dream-seed must be >= 0, got {args.dream_seed}")
     setup = Setup(setup.per_world, args.per_program or setup.per_program, setup.per_long_program, args.steps,
-                  args.start_seed)
+                  args.start_seed, args.dream_seed)
     from benchmarks.machine import machine_info, write_result
 
     load = os.getloadavg()

@@ -279,6 +279,33 @@ def test_warp_formula_replays_the_warps_on_pixels():
 
 
 @pytest.mark.slow  # ~50 s on 2 shared cores, ~45 of them building and compiling the test-preset model
+def test_dream_seed_moves_only_the_dream_reset_seed():
+    """``--dream-seed`` adds to the dream's reset seed (its sampling noise) and leaves the start state and the
+    actions as the engine played them."""
+    class Recorder:  # the two calls dream_rollout makes of a dream env
+        def __init__(self):
+            self.resets, self.steps = [], []
+
+        def reset(self, seed, options):
+            self.resets.append((seed, options["engine_state"]))
+            return {df.LEARNER: np.zeros((2, 2, 3), np.uint8)}, {}
+
+        def step(self, action):
+            self.steps.append(action)
+            return {df.LEARNER: np.full((2, 2, 3), len(self.steps), np.uint8)}, {}, {}, {}, {}
+
+    actions = [{df.LEARNER: df.make_action(forward=1), df.PARTNER: df.make_action()}] * 3
+    rollout = df.Rollout("forward", "learner", 0, "START", "grass", True, 41, actions,
+                         np.zeros((4, 2, 2, 3), np.uint8), np.zeros(4), [None] * 4, np.zeros((4, 2)))
+    for dream_seed in (0, 5):
+        env = Recorder()
+        frames = df.dream_rollout(env, rollout, dream_seed)
+        assert env.resets == [(41 + dream_seed, "START")] and env.steps == actions
+        assert frames.shape == (4, 2, 2, 3) and frames[3, 0, 0, 0] == 3
+    with pytest.raises(ValueError, match="--dream-seed"):
+        df.main(["--dream-seed", "-1"])
+
+
 def test_end_to_end_tiny_run_writes_json_png_mp4(tmp_path):
     out = tmp_path / "fid.json"
     result = df.main(["--model", "preset:test", "--quick", "--steps", "3", "--per-program", "1",
@@ -289,6 +316,7 @@ def test_end_to_end_tiny_run_writes_json_png_mp4(tmp_path):
     assert str(tmp_path) not in text and str(df.REPO) not in text  # no absolute paths
     setup = result["setup"]
     assert setup["models"] == [{"spec": "preset:test", "name": "preset test (random init)"}]
+    assert setup["dream_seed"] == 0
     assert {s["world"] for s in setup["start_states"]} == set(df.WORLD_CLASSES)
     assert {s["partner_in_view"] for s in setup["start_states"]} == {True, False}
     assert setup["bot_episode"]["type"]
