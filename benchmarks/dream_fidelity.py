@@ -1207,8 +1207,8 @@ def run(model_specs: Sequence[str], program_names: Sequence[str], setup: Setup, 
         "setup": {
             "models": [{"spec": spec, "name": model_label(spec)} for spec in model_specs],
             "frame_size": [height, width], "frames_per_step": k, "quick": quick,
-            "start_seed": setup.start_seed, "dream_seed": setup.dream_seed, "per_world": setup.per_world, "per_program": setup.per_program,
-            "per_long_program": setup.per_long_program,
+            "start_seed": setup.start_seed, "dream_seed": setup.dream_seed, "per_world": setup.per_world,
+            "per_program": setup.per_program, "per_long_program": setup.per_long_program,
             "start_states": [s.describe() for s in states],
             "programs": {p.name: {"steps": p.steps, "kind": p.kind, "doc": p.doc, "start_states": assignment[p.name]}
                          for p in programs},

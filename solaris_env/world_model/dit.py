@@ -38,7 +38,7 @@ import numpy as np
 from flax import nnx
 
 from solaris_env.world_model import camera as camera_lib
-from solaris_env.world_model import kv_cache, masks, rope
+from solaris_env.world_model import flow_matching, kv_cache, masks, rope
 from solaris_env.world_model.action_module import ActionModule, action_windows, padded_action_length
 from solaris_env.world_model.attention import (RMSNorm, attention, attention_heads_major, dense, layer_norm,
                                                stop_gradient_where)
@@ -734,7 +734,7 @@ class LocalRefine(nnx.Module):
 
     def __call__(self, x_BPFhwC, base_BPFhwC, v_BPFhwC, t_BPF) -> jax.Array:
         lead, grid = x_BPFhwC.shape[:3], x_BPFhwC.shape[3:5]
-        sigma = jnp.broadcast_to((t_BPF.astype(jnp.float32) / 1000.0)[..., None, None, None], lead + grid + (1,))
+        sigma = jnp.broadcast_to(flow_matching.sigma_BPF111(t_BPF.astype(jnp.float32)), lead + grid + (1,))
         h = jnp.concatenate([x_BPFhwC, base_BPFhwC, v_BPFhwC, sigma], axis=-1)
         h = h.reshape((math.prod(lead),) + grid + (h.shape[-1],))
         h = self.conv_out(jax.nn.gelu(self.conv_in(h.astype(self.conv_in.kernel.dtype))))

@@ -278,7 +278,6 @@ def test_warp_formula_replays_the_warps_on_pixels():
 # ---------------------------------------------------------------------------------------------
 
 
-@pytest.mark.slow  # ~50 s on 2 shared cores, ~45 of them building and compiling the test-preset model
 def test_dream_seed_moves_only_the_dream_reset_seed():
     """``--dream-seed`` adds to the dream's reset seed (its sampling noise) and leaves the start state and the
     actions as the engine played them."""
@@ -306,6 +305,7 @@ def test_dream_seed_moves_only_the_dream_reset_seed():
         df.main(["--dream-seed", "-1"])
 
 
+@pytest.mark.slow  # ~50 s on 2 shared cores, ~45 of them building and compiling the test-preset model
 def test_end_to_end_tiny_run_writes_json_png_mp4(tmp_path):
     out = tmp_path / "fid.json"
     result = df.main(["--model", "preset:test", "--quick", "--steps", "3", "--per-program", "1",

@@ -368,4 +368,3 @@ def test_local_refine_config_and_cached_rollout():
     model = _build(cfg, seed=36)  # random weights everywhere, the refinement's output convolution included
     inp = _turning(cfg, 36)[2]
     _cached_rollout_agrees(cfg, model, inp)
-
