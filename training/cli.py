@@ -116,7 +116,7 @@ def cmd_action_conditioning(args) -> int:
     from training.surgery import with_action_conditioning
     dest = with_action_conditioning(args.model, args.out, args.mouse_gain, camera_warp=args.camera_warp,
                                     walk_warp=args.walk_warp, previous_skip=args.previous_skip or None,
-                                    warp_interp=args.warp_interp, local_refine=args.local_refine)
+                                    warp_interp=args.warp_interp)
     print(f"wrote {dest}")
     return 0
 
@@ -217,9 +217,6 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--warp-interp", choices=WARP_INTERPOLATIONS, default=None,
                    help="set DiTConfig.warp_interp, how the camera warp samples between latent pixels (the "
                         "weights are kept; docs/model.md 8.1)")
-    g.add_argument("--local-refine", type=int, default=None, metavar="HIDDEN",
-                   help="turn on DiTConfig.local_refine (two 3x3 convolutions on the latent grid added to the "
-                        "velocity, this many hidden channels; needs the skip), its output at zero")
     g.add_argument("--out", required=True, help="the new model directory")
     g.set_defaults(func=cmd_action_conditioning)
     o = sub.add_parser("official-dit", help="a model's VAE and image encoder under a fresh DiT in the official "

@@ -31,7 +31,7 @@ from solaris_env.world_model import checkpoint
 from solaris_env.world_model.action_module import rescaled_mouse_kernel
 from solaris_env.world_model.components import COMPONENTS
 from solaris_env.world_model.config import VAEConfig
-from solaris_env.world_model.dit import LocalRefine, skip_gate
+from solaris_env.world_model.dit import skip_gate
 from solaris_env.world_model.vae import CausalVideoVAE
 from solaris_env.world_model.world_model import WorldModel
 from training.vae import DECODER_MODULES
@@ -111,7 +111,7 @@ def with_vae(model: str | Path, vae_from: str | Path, dest: str | Path) -> Path:
 def with_action_conditioning(model: str | Path, dest: str | Path, mouse_input_gain: float | None = None,
                              camera_warp: tuple[float, float] | None = None,
                              walk_warp: float | None = None, previous_skip: bool | None = None,
-                             warp_interp: str | None = None, local_refine: int | None = None) -> Path:
+                             warp_interp: str | None = None) -> Path:
     """Write ``model`` under another action conditioning, computing the same function (None keeps a setting):
 
     * ``mouse_input_gain``: the mouse rows of every ``mouse_mlp`` first kernel scaled by old / new gain, so
@@ -125,9 +125,7 @@ def with_action_conditioning(model: str | Path, dest: str | Path, mouse_input_ga
     * ``previous_skip=True``: turns on ``DiTConfig.previous_skip`` with its gates at zero (needs the camera warp,
       given or already on); from a model that has it, its trained gates are kept;
     * ``warp_interp``: sets ``DiTConfig.warp_interp`` (how the camera warp samples between latent pixels); the
-      weights are kept, the function changes wherever the camera turns by a fraction of a latent pixel;
-    * ``local_refine``: turns on ``DiTConfig.local_refine`` (hidden channels; needs the skip) with its output
-      convolution at zero; from a model that has it, only the same width is accepted (its weights are kept).
+      weights are kept, the function changes wherever the camera turns by a fraction of a latent pixel.
     """
     base = WorldModel.load(model)
     old = base.config
@@ -141,11 +139,6 @@ def with_action_conditioning(model: str | Path, dest: str | Path, mouse_input_ga
         dit = dataclasses.replace(dit, previous_skip=bool(previous_skip))
     if warp_interp is not None:
         dit = dataclasses.replace(dit, warp_interp=warp_interp)
-    if local_refine is not None:
-        if old.dit.local_refine and local_refine != old.dit.local_refine:
-            raise ValueError(f"{model} has local_refine={old.dit.local_refine}; changing its width to {local_refine} "
-                             "would drop its trained refinement")
-        dit = dataclasses.replace(dit, local_refine=int(local_refine))
     if old.dit.previous_skip and not dit.previous_skip:
         raise ValueError(f"{model} was trained with previous_skip; dropping it would drop its trained skip gates")
     if old.dit.camera_warp_enabled and not dit.camera_warp_enabled:
@@ -161,8 +154,6 @@ def with_action_conditioning(model: str | Path, dest: str | Path, mouse_input_ga
         pe.set_value(jnp.pad(k, pad))
     if dit.previous_skip and not old.dit.previous_skip:  # the gates at zero, as a fresh model has them
         dit_state["skip_gate"] = nnx.state(skip_gate(cfg, nnx.Rngs(0)), nnx.Param)
-    if dit.local_refine and not old.dit.local_refine:  # its output convolution at zero: the same function
-        dit_state["local_refine"] = nnx.state(LocalRefine(cfg, rngs=nnx.Rngs(0)), nnx.Param)
     kernel = dit_state["blocks"]["action_model"]["mouse_mlp"]["layers"][0]["kernel"]
     kernel.set_value(rescaled_mouse_kernel(kernel.get_value(), old, action.mouse_input_gain))
     checkpoint.save(dest, cfg, dict(zip(COMPONENTS, (dit_state, vae_state, encoder_state))))
@@ -172,14 +163,14 @@ def with_action_conditioning(model: str | Path, dest: str | Path, mouse_input_ga
 def official_dit(model: str | Path, dest: str | Path, seed: int = 0) -> Path:
     """Write ``model``'s VAE and image encoder, unchanged, with a freshly initialised DiT (``seed``) in the
     official layout to ``dest``: our DiT options at their official values (``DiTConfig.camera_warp``,
-    ``walk_warp``, ``previous_skip`` and ``local_refine`` off, ``warp_interp`` linear,
+    ``walk_warp`` and ``previous_skip`` off, ``warp_interp`` linear,
     ``ActionConfig.mouse_input_gain`` 1), every size as ``model``'s. Trained through the DiT stages with the
     same steps and data as ``model``'s DiT, it is the control that measures those options (docs/training.md,
     "The control row")."""
     base = WorldModel.load(model_directory(model))
     old = base.config
     dit = dataclasses.replace(old.dit, camera_warp=(0.0, 0.0), walk_warp=0.0, previous_skip=False,
-                              warp_interp="linear", local_refine=0)
+                              warp_interp="linear")
     cfg = old.replace(dit=dit,
                       action=dataclasses.replace(old.action, mouse_input_gain=1.0))
     fresh_dit, _, _ = WorldModel.from_config(cfg, seed=seed).params

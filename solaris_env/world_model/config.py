@@ -67,10 +67,6 @@ class DiTConfig:
     # How the camera warp samples between latent pixels: "linear", or "cubic" (Catmull-Rom), which blurs less
     # when a rollout shifts its own frames step after step (``camera.shift_latents``; docs/model.md §8.1).
     warp_interp: str = "linear"
-    # Local refinement (ours; 0 = off): two 3x3 convolutions on the latent grid (this many hidden channels) read
-    # the noisy latent, the skip's previous latent, the velocity and the noise level, and add to the velocity, so
-    # the output is not limited to what one token's head writes (``dit.LocalRefine``). Needs previous_skip.
-    local_refine: int = 0
 
     def __post_init__(self):
         _require(self.dim % self.num_heads == 0, f"dim={self.dim} must be divisible by num_heads={self.num_heads}")
@@ -84,9 +80,6 @@ class DiTConfig:
                  f"walk_warp={self.walk_warp} moves the camera warp's input; it needs camera_warp on")
         _require(self.warp_interp in WARP_INTERPOLATIONS,
                  f"warp_interp must be one of {WARP_INTERPOLATIONS}, got {self.warp_interp!r}")
-        _require(self.local_refine >= 0 and (self.local_refine == 0 or self.previous_skip),
-                 f"local_refine={self.local_refine} must be >= 0 and reads the skip's previous latent; it needs "
-                 "previous_skip on")
         _require(not self.previous_skip or self.camera_warp_enabled,
                  f"previous_skip={self.previous_skip} adds the camera warp's previous latent; it needs camera_warp on")
         _require(self.head_dim % 2 == 0, f"head_dim={self.head_dim} must be even for RoPE")

@@ -38,7 +38,7 @@ import numpy as np
 from flax import nnx
 
 from solaris_env.world_model import camera as camera_lib
-from solaris_env.world_model import flow_matching, kv_cache, masks, rope
+from solaris_env.world_model import kv_cache, masks, rope
 from solaris_env.world_model.action_module import ActionModule, action_windows, padded_action_length
 from solaris_env.world_model.attention import (RMSNorm, attention, attention_heads_major, dense, layer_norm,
                                                stop_gradient_where)
@@ -453,8 +453,6 @@ class WorldDiT(nnx.Module):
         self.head = Head(cfg, rngs=rngs)
         if d.previous_skip:
             self.skip_gate = skip_gate(cfg, rngs)
-        if d.local_refine:
-            self.local_refine = LocalRefine(cfg, rngs=rngs)
 
     # -- entry points ------------------------------------------------------------------------------
     def forward_bidirectional(self, x, t, cond, context, mouse, keyboard, clean=None) -> jax.Array:
@@ -550,7 +548,7 @@ class WorldDiT(nnx.Module):
             tokens, layer_cache = block.decode(tokens, cond_in, angles, action_angles, i, layer_cache,
                                                (_fold(k), _fold(v)), commit)
             new_layers.append(layer_cache)
-        v = self._output(tokens, e, x, base, t)
+        v = self._output(tokens, e, x, base)
         if not commit:
             return v, cache
         # the camera warp's latent: the newest committed frame's
@@ -695,21 +693,16 @@ class WorldDiT(nnx.Module):
             return block(h, cond_in, plan, layer), None
 
         tokens, _ = _scan_layers(self.blocks, step, tokens, jnp.arange(self.cfg.dit.num_layers), remat)
-        return self._output(tokens, e, x, base, t)
+        return self._output(tokens, e, x, base)
 
-    def _output(self, tokens_BPFLD, e_BPFD, x, base, t_BPF) -> jax.Array:
-        """The head's velocity, plus the previous-frame skip g_x(t) * x - g_b(t) * base where ``base`` is given,
-        plus the local refinement where configured."""
+    def _output(self, tokens_BPFLD, e_BPFD, x, base) -> jax.Array:
+        """The head's velocity, plus the previous-frame skip g_x(t) * x - g_b(t) * base where ``base`` is given."""
         v = self._unpatchify(self.head(tokens_BPFLD, e_BPFD))
         if base is None:
             return v
         gates_BPF11G = self.skip_gate(jax.nn.silu(e_BPFD))[:, :, :, None, None, :].astype(jnp.float32)
         gx, gb = jnp.split(gates_BPF11G, 2, axis=-1)
-        x32, base32 = x.astype(jnp.float32), base.astype(jnp.float32)
-        v32 = v.astype(jnp.float32) + gx * x32 - gb * base32
-        if self.cfg.dit.local_refine:
-            v32 = v32 + self.local_refine(x32, base32, v32, t_BPF)
-        return v32.astype(v.dtype)
+        return (v.astype(jnp.float32) + gx * x.astype(jnp.float32) - gb * base.astype(jnp.float32)).astype(v.dtype)
 
     def _unpatchify(self, y_BPFLO: jax.Array) -> jax.Array:
         """(B, P, F, h*w, pf*ph*pw*C) -> (B, P, F*pf, h*ph, w*pw, C), channels fastest."""
@@ -718,27 +711,6 @@ class WorldDiT(nnx.Module):
         pf, ph, pw = self.cfg.dit.patch_size
         y = y_BPFLO.reshape(b, p, f, gh, gw, pf, ph, pw, -1).transpose(0, 1, 2, 5, 3, 6, 4, 7, 8)
         return y.reshape(b, p, f * pf, gh * ph, gw * pw, -1)
-
-
-class LocalRefine(nnx.Module):
-    """``DiTConfig.local_refine``: Conv3x3(noisy latent, previous latent, velocity, sigma -> hidden), GELU,
-    Conv3x3(hidden -> latent channels, zero-initialised), added to the velocity. It works on the latent grid, where
-    one DiT token's head only writes its own patch; at zero it leaves the velocity as it was."""
-
-    def __init__(self, cfg: WorldModelConfig, *, rngs: nnx.Rngs):
-        c, hidden = cfg.out_channels, cfg.dit.local_refine
-        kw = _dtypes(cfg)
-        self.conv_in = nnx.Conv(3 * c + 1, hidden, kernel_size=(3, 3), padding="SAME", rngs=rngs, **kw)
-        self.conv_out = nnx.Conv(hidden, c, kernel_size=(3, 3), padding="SAME", rngs=rngs,
-                                 kernel_init=nnx.initializers.zeros_init(), **kw)
-
-    def __call__(self, x_BPFhwC, base_BPFhwC, v_BPFhwC, t_BPF) -> jax.Array:
-        lead, grid = x_BPFhwC.shape[:3], x_BPFhwC.shape[3:5]
-        sigma = jnp.broadcast_to(flow_matching.sigma_BPF111(t_BPF.astype(jnp.float32)), lead + grid + (1,))
-        h = jnp.concatenate([x_BPFhwC, base_BPFhwC, v_BPFhwC, sigma], axis=-1)
-        h = h.reshape((math.prod(lead),) + grid + (h.shape[-1],))
-        h = self.conv_out(jax.nn.gelu(self.conv_in(h.astype(self.conv_in.kernel.dtype))))
-        return h.reshape(x_BPFhwC.shape).astype(jnp.float32)
 
 
 def skip_gate(cfg: WorldModelConfig, rngs: nnx.Rngs) -> nnx.Module:

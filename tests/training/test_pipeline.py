@@ -224,18 +224,6 @@ def test_camera_warp_retrofit_computes_the_same(run, tmp_path):
     assert cubist.config.replace(dit=skipper.config.dit) == skipper.config
     assert all(np.array_equal(np.asarray(a), np.asarray(b))
                for a, b in zip(jax.tree.leaves(cubist.params), jax.tree.leaves(skipper.params)))
-    # the local refinement starts with its output convolution at zero: the same frames
-    refine = tmp_path / "refine"
-    assert cli.main(["action-conditioning", str(cubic), "--local-refine", "8", "--out", str(refine)]) == 0
-    refiner = WorldModel.load(refine)
-    assert refiner.config.dit.local_refine == 8
-    assert np.abs(np.asarray(refiner.params[0]["local_refine"]["conv_out"]["kernel"].get_value())).max() == 0
-    outs = [third_step(model, first, actions) for model in (cubist, refiner)]
-    assert np.abs(outs[0] - outs[1]).max() <= 1
-    with pytest.raises(ValueError, match="local_refine"):
-        with_action_conditioning(walk, tmp_path / "noskip2", local_refine=8)  # no skip, so no previous latent
-    with pytest.raises(ValueError, match="local_refine"):
-        with_action_conditioning(refine, tmp_path / "wider", local_refine=16)
 
 
 def test_self_forcing_stage_runs_from_stages_2_and_3(run, data):

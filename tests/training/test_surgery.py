@@ -17,8 +17,7 @@ def _leaves(state):
 
 def test_official_dit_keeps_the_autoencoder_and_starts_a_fresh_official_dit(tmp_path):
     base = preset("test")
-    ours = base.replace(dit=dataclasses.replace(base.dit, camera_warp=(0.1, 0.06), walk_warp=0.1, previous_skip=True,
-                                                local_refine=8),
+    ours = base.replace(dit=dataclasses.replace(base.dit, camera_warp=(0.1, 0.06), walk_warp=0.1, previous_skip=True),
                         action=dataclasses.replace(base.action, mouse_input_gain=10.0))
     WorldModel.from_config(ours, seed=3).save(tmp_path / "ours")
 
@@ -27,7 +26,6 @@ def test_official_dit_keeps_the_autoencoder_and_starts_a_fresh_official_dit(tmp_
     cfg = control.config
     assert cfg.dit.camera_warp == (0.0, 0.0) and not cfg.dit.camera_warp_enabled and cfg.dit.walk_warp == 0.0
     assert not cfg.dit.previous_skip and "skip_gate" not in control.params[0]
-    assert cfg.dit.local_refine == 0 and "local_refine" not in control.params[0]
     assert cfg.action.mouse_input_gain == 1.0
     # every other field is the source's: only our options changed
     assert cfg.replace(dit=ours.dit, action=ours.action) == src.config

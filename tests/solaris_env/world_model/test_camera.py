@@ -352,19 +352,3 @@ def test_previous_skip_gate_learns_from_zero():
     grads = nnx.grad(loss)(model)
     assert float(jnp.abs(grads["skip_gate"]["bias"].get_value()).min()) > 0
     assert float(jnp.abs(grads["skip_gate"]["kernel"].get_value()).max()) > 0
-
-
-# ---------------------------------------------------------------------------------------------
-# Local refinement
-# ---------------------------------------------------------------------------------------------
-
-def test_local_refine_config_and_cached_rollout():
-    with pytest.raises(ValueError, match="local_refine"):
-        DiTConfig(camera_warp=WARP, local_refine=8)  # no skip
-    with pytest.raises(ValueError, match="local_refine"):
-        DiTConfig(camera_warp=WARP, previous_skip=True, local_refine=-1)
-    cfg = _warp_cfg()
-    cfg = cfg.replace(dit=dataclasses.replace(cfg.dit, walk_warp=0.13, previous_skip=True, local_refine=8))
-    model = _build(cfg, seed=36)  # random weights everywhere, the refinement's output convolution included
-    inp = _turning(cfg, 36)[2]
-    _cached_rollout_agrees(cfg, model, inp)
