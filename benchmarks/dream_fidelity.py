@@ -1104,6 +1104,10 @@ class Setup:
     start_seed: int = START_SEED
     dream_seed: int = 0  # added to every dream rollout's reset seed: other sampling noise, the same engine rollouts
 
+    def __post_init__(self):
+        if self.dream_seed < 0:
+            raise ValueError(f"dream_seed (--dream-seed) must be >= 0, got {self.dream_seed}")
+
 
 QUICK = Setup(per_world=1, per_program=2, per_long_program=1, steps=None)
 QUICK_STEPS = (16, 32)  # --quick: 64-step programs play 16 steps, the long ones 32
@@ -1307,8 +1311,6 @@ def main(argv: list[str] | None = None) -> dict:
     args = p.parse_args(argv)
     specs = args.model or ["default"]
     setup = QUICK if args.quick else Setup()
-    if args.dream_seed < 0:
-        raise ValueError(f"--dream-seed must be >= 0, got {args.dream_seed}")
     setup = Setup(setup.per_world, args.per_program or setup.per_program, setup.per_long_program, args.steps,
                   args.start_seed, args.dream_seed)
     from benchmarks.machine import machine_info, write_result
