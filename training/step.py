@@ -178,6 +178,28 @@ def make_loss_fn(graphdef: nnx.GraphDef, entry_point_name: str) -> Callable:
     return loss_fn
 
 
+def make_test_loss(graphdef: nnx.GraphDef, entry_point_name: str, noise_type: str, batches: list[dict],
+                   seed: int = 0) -> Callable:
+    """-> jitted ``test_loss(params, rest) -> scalar``: the flow-matching loss of the train step (the same entry
+    point, noise type and clean warp input), averaged over ``batches`` (each a ``prepare_batch`` dict), batch i
+    with its timesteps and noise drawn from ``fold_in(PRNGKey(seed), i)``: the same draws at every call, so
+    two calls differ only by the parameters."""
+    if noise_type not in NOISE_TYPES:
+        raise ValueError(f"noise_type must be one of {NOISE_TYPES}, got {noise_type!r}")
+    if not batches:
+        raise ValueError("make_test_loss needs at least one batch")
+    loss_fn = make_loss_fn(graphdef, entry_point_name)
+
+    def one(params, rest, batch, i):
+        k_t, k_noise = jax.random.split(jax.random.fold_in(jax.random.PRNGKey(seed), i))
+        x0 = batch["x0"]
+        t_BPF = sample_timesteps(k_t, x0.shape[:3], noise_type)
+        return loss_fn(params, rest, batch, t_BPF, jax.random.normal(k_noise, x0.shape, jnp.float32))
+
+    jitted = jax.jit(one)
+    return lambda params, rest: jnp.mean(jnp.stack([jitted(params, rest, b, i) for i, b in enumerate(batches)]))
+
+
 def make_train_step(graphdef: nnx.GraphDef, entry_point_name: str, noise_type: str,
                     tx: optax.GradientTransformation, ema_decay: float = 0.999) -> Callable:
     """-> jitted ``train_step(state, batch) -> (state, metrics)``; ``state`` is donated.

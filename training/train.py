@@ -111,11 +111,13 @@ class LoopSpec:
     fsdp: bool = False  # shard parameters and optimiser state over the "data" mesh axis (else replicated)
     lr_decay_steps: int = 0  # the optimiser's linear cool-down (``step.scheduled_lr``); only logged here
     deadline: float | None = None  # epoch seconds: the last step is the one after which the next would end past it
+    test_every: int = 0  # ``on_test`` this often and after the last step; 0: never
 
 
 def run_loop(spec: LoopSpec, out: Path, state: Any, step_fn: Callable, draw_batch: Callable[[], Any],
              sampler, resume: bool, on_sample: Callable[[Any, int], None] | None = None,
-             on_step: Callable[[Any, int], None] | None = None) -> Any:
+             on_step: Callable[[Any, int], None] | None = None,
+             on_test: Callable[[Any], float] | None = None) -> Any:
     """Train ``state`` to ``spec.steps`` updates with checkpoints, metrics and samples; resumable.
 
     ``step_fn(state, batch) -> (state, metrics)`` donates ``state``; ``draw_batch()`` draws from ``sampler``
@@ -126,7 +128,9 @@ def run_loop(spec: LoopSpec, out: Path, state: Any, step_fn: Callable, draw_batc
     runs. With a deadline every step is waited for before the clock is read (JAX dispatches asynchronously,
     and the host may run steps ahead of the device), so the host no longer prepares the next batch while the
     device computes. ``ckpt_every`` / ``sample_every`` <= 0: no checkpoints / samples at all (``training.sprint``,
-    which never resumes). ``on_step(state, step)`` runs after every step. Returns the final state.
+    which never resumes). ``on_step(state, step)`` runs after every step. ``on_test(state)`` (the held-out loss)
+    runs every ``spec.test_every`` steps and after the last; its value is logged as ``test_loss``. Returns the
+    final state.
     """
     from training.distributed import make_mesh, shard_batch, shard_train_state
 
@@ -166,6 +170,10 @@ def run_loop(spec: LoopSpec, out: Path, state: Any, step_fn: Callable, draw_batc
             losses = {k: f"{v:.4f}" for k, v in host.items() if k.endswith("loss")}
             bar.set_postfix(**losses, steps_s=f"{steps_per_s:.2f}")
         bar.update(1)
+        if on_test is not None and spec.test_every > 0 and (done % spec.test_every == 0 or last):
+            t_test = time.perf_counter()
+            metrics_log.log(done, stage=spec.stage, test_loss=on_test(state))
+            t_last += time.perf_counter() - t_test  # the logged steps/s are the training's own
         if spec.ckpt_every > 0 and (done % spec.ckpt_every == 0 or last):
             ckpt.save(done, state, {"sampler": sampler.state_dict(), "stage": spec.stage})
         if on_sample is not None and spec.sample_every > 0 and (done % spec.sample_every == 0 or last):
@@ -434,6 +442,29 @@ def clip_stream(out: Path, data_dir: Path, cfg: WorldModelConfig, vae,
     return clips, sampler
 
 
+def heldout_batches(out: Path, data_dir: Path, cfg: WorldModelConfig, vae, prepare: Callable, num_frames: int,
+                    batch_size: int, count: int, seed: int, single_player: bool) -> list[dict]:
+    """``count`` fixed DiT batches (``prepare``d) of the data's test split, drawn once with ``seed``; the latent
+    cache of ``out/latents`` serves them as it serves training. Raises if the test split has no episodes."""
+    from training.latents import latent_clips
+
+    why = (f"test_every > 0 needs held-out episodes, but {data_dir} has none in its test split (collect with "
+           f"--test-fraction > 0, or set the stage's test_every to 0)")
+    try:
+        dataset, sampler = (vpt_stream if single_player else duet_stream)(data_dir, cfg, num_frames, seed,
+                                                                          split="test")
+    except FileNotFoundError as err:
+        raise ValueError(f"{why}: {err}") from None
+    if not dataset.valid_ids:
+        raise ValueError(why)
+    clips = latent_clips(dataset, cfg, vae, Path(out) / "latents", canonical_dir=Path(data_dir) / "duet")
+    try:
+        clips.build_for_stage(None)
+        return [prepare(clips.next_batch(sampler, batch_size, num_frames)) for _ in range(count)]
+    finally:
+        clips.close()
+
+
 def train_flow(stage: str, out: str | Path, data_dir: str | Path, sc: FlowStageConfig, seed: int = 0,
                steps: int | None = None, resume: bool = True, fsdp: bool = False,
                deadline: float | None = None, on_model: Callable | None = None) -> Path:
@@ -462,6 +493,14 @@ def train_flow(stage: str, out: str | Path, data_dir: str | Path, sc: FlowStageC
 
     batch_size = local_batch_size(sc.batch_size)
     prepare = make_prepare_latents(cfg, vae, encoder)
+    on_test = None
+    if sc.test_every > 0:  # before any thread starts: a missing test split fails here
+        from training.step import make_test_loss
+
+        test_loss = make_test_loss(graphdef, fs.entry_point, fs.noise_type,
+                                   heldout_batches(out, data_dir, cfg, vae, prepare, sc.num_frames, batch_size,
+                                                   sc.test_batches, seed, fs.single_player))
+        on_test = lambda st: float(test_loss(st.final_params, st.rest))
     ahead = compile_ahead(train_step, state, jax.eval_shape(prepare, batch_spec(cfg, batch_size, sc.num_frames)), fsdp)
     clips, sampler = clip_stream(out, data_dir, cfg, vae, sc, seed, fs.single_player, deadline)
     ahead.join()
@@ -477,13 +516,14 @@ def train_flow(stage: str, out: str | Path, data_dir: str | Path, sc: FlowStageC
     frames = cfg.vae.latent_frames(sc.num_frames)
     spec = LoopSpec(stage, steps, sc.log_every, sc.ckpt_every, sc.sample_every,
                     tokens_per_step=batch_size * cfg.num_players * frames * cfg.tokens_per_frame, lr=sc.lr,
-                    fsdp=fsdp, lr_decay_steps=decay_steps, deadline=deadline)
+                    fsdp=fsdp, lr_decay_steps=decay_steps, deadline=deadline, test_every=sc.test_every)
 
     def current(st) -> WorldModel:
         return WorldModel(cfg, nnx.merge(graphdef, st.final_params, st.rest), vae, encoder)
 
     try:
-        state = run_loop(spec, out, state, train_step, draw, sampler, resume, on_sample, _model_hook(on_model, current))
+        state = run_loop(spec, out, state, train_step, draw, sampler, resume, on_sample, _model_hook(on_model, current),
+                         on_test)
     finally:
         clips.close()  # the background encoder, if any
     current(state).save(model_dir(out, stage))

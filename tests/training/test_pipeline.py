@@ -132,6 +132,51 @@ def test_kill_9_then_resume_gives_the_same_losses(run, data, tmp_path):
         assert resumed[step] == pytest.approx(uninterrupted[step], rel=1e-6, abs=1e-7), step
 
 
+def test_flow_stage_logs_the_held_out_loss_of_the_parameters_it_saves(run, data, tmp_path):
+    """test_every = 2 over 3 steps: test_loss records at steps 2 and 3 (the last), and the last equals the loss
+    of the saved model (the EMA) on the same fixed test-split batches; without a test split, a clear error."""
+    import shutil
+
+    from flax import nnx
+
+    from solaris_env.world_model.world_model import WorldModel
+    from training.latents import make_prepare_latents
+    from training.step import make_test_loss
+    from training.train import FLOW_STAGES, heldout_batches
+
+    out = tmp_path / "run"
+    out.mkdir()
+    shutil.copytree(run / "mp-bidirectional", out / "mp-bidirectional")
+    shutil.copytree(run / "latents", out / "latents")
+    config = json.loads((REPO / "training" / "configs" / "test.json").read_text())
+    config["mp-causal"].update(sample_every=10**6, test_every=2, test_batches=2)
+    config_path = tmp_path / "config.json"
+    config_path.write_text(json.dumps(config))
+    argv = ["mp-causal", "--preset", "test", "--config", str(config_path), "--data", str(data), "--out", str(out)]
+    assert cli.main(argv) == 0
+    records = read_metrics(out / "mp-causal" / "metrics.jsonl")
+    tests = {m["step"]: m["test_loss"] for m in records if "test_loss" in m}
+    assert sorted(tests) == [2, 3] and all(v > 0 for v in tests.values())
+    assert all("loss" in m for m in records if "test_loss" not in m)
+
+    model = WorldModel.load(model_dir(out, "mp-causal"))
+    dit, vae, encoder = model.modules()
+    sc = config["mp-causal"]
+    batches = heldout_batches(out, data, model.config, vae, make_prepare_latents(model.config, vae, encoder),
+                              sc["num_frames"], sc["batch_size"], 2, config["seed"], single_player=False)
+    graphdef, params, rest = nnx.split(dit, nnx.Param, ...)
+    fs = FLOW_STAGES["mp-causal"]
+    saved = float(make_test_loss(graphdef, fs.entry_point, fs.noise_type, batches)(params, rest))
+    assert tests[3] == pytest.approx(saved, rel=1e-4)
+
+    train_only = tmp_path / "train_only"
+    shutil.copytree(data / "duet" / "train", train_only / "duet" / "train")
+    bad = ["mp-causal", "--preset", "test", "--config", str(config_path), "--data", str(train_only), "--out",
+           str(out), "--steps", "4"]
+    with pytest.raises(SystemExit, match="test_every > 0 needs held-out episodes"):  # the CLI's error line
+        cli.main(bad)
+
+
 def test_action_conditioning_rewrites_a_model_that_computes_the_same(run, tmp_path):
     """``solaris-train action-conditioning --mouse-gain``: the new config, the mouse rows rescaled, the same
     generated frames (within one grey level) for a turning rollout."""

@@ -14,7 +14,7 @@ from solaris_env.world_model.world_model import WorldModel
 from training.objectives import NUM_TRAIN_TIMESTEPS, sample_timesteps
 from training.samplers import make_batch
 from training.step import (NonFiniteError, TrainState, check_finite, ema_decay_at, ema_update, make_loss_fn,
-                           make_optimizer, make_train_step, prepare_batch, scheduled_lr)
+                           make_optimizer, make_test_loss, make_train_step, prepare_batch, scheduled_lr)
 
 B, T = 2, 5
 LR = 3e-3
@@ -243,3 +243,27 @@ def test_a_step_compiled_ahead_is_not_compiled_again_by_the_loop():
         assert len(compiles) == 1
     finally:
         monitoring.unregister_event_duration_listener(listener)
+
+
+def test_test_loss_is_the_train_objective_on_fixed_draws(modules, batch):
+    """make_test_loss: the mean over its batches of the train step's loss, batch i with timesteps and noise from
+    fold_in(PRNGKey(seed), i), the same at every call; other parameters give another value."""
+    entry, noise_type = VARIANTS["causal"]
+    graphdef, state, _ = _fresh(modules)
+    other = jax.tree.map(lambda a: a + 0.01, state.params)  # (a fresh head is zero: scaling would not move it)
+    batches = [batch, jax.tree.map(lambda a: a[::-1], batch)]  # two different batches (the rows swapped)
+    test_loss = make_test_loss(graphdef, entry, noise_type, batches, seed=3)
+    loss_fn = make_loss_fn(graphdef, entry)
+    expected = []
+    for i, b in enumerate(batches):
+        k_t, k_noise = jax.random.split(jax.random.fold_in(jax.random.PRNGKey(3), i))
+        t = sample_timesteps(k_t, b["x0"].shape[:3], noise_type)
+        expected.append(float(loss_fn(state.params, state.rest, b, t, jax.random.normal(k_noise, b["x0"].shape))))
+    first = float(test_loss(state.params, state.rest))
+    assert first == pytest.approx(np.mean(expected), rel=1e-5)
+    assert float(test_loss(state.params, state.rest)) == first  # fixed draws
+    assert float(test_loss(other, state.rest)) != pytest.approx(first, rel=1e-6)
+    with pytest.raises(ValueError, match="at least one batch"):
+        make_test_loss(graphdef, entry, noise_type, [])
+    with pytest.raises(ValueError, match="noise_type"):
+        make_test_loss(graphdef, entry, "uniform", batches)
