@@ -420,6 +420,13 @@ def compile_ahead(step_fn, state: Any, batch_shapes: Any, fsdp: bool) -> threadi
     return thread
 
 
+def _stage_latent_clips(out: Path, data_dir: Path, cfg: WorldModelConfig, vae, dataset):
+    """``dataset``'s latent clips, cached in ``out/latents`` under the stage's VAE."""
+    from training.latents import latent_clips
+
+    return latent_clips(dataset, cfg, vae, Path(out) / "latents", canonical_dir=Path(data_dir) / "duet")
+
+
 def clip_stream(out: Path, data_dir: Path, cfg: WorldModelConfig, vae,
                 sc: FlowStageConfig | SelfForcingStageConfig, seed: int,
                 single_player: bool, deadline: float | None = None):
@@ -429,11 +436,9 @@ def clip_stream(out: Path, data_dir: Path, cfg: WorldModelConfig, vae,
     built whole before training; with either, a short share of the stage's time is spent on it and the rest is
     encoded in the background while batches come from the ready episodes (``LatentClips.build_for_stage``).
     The caller ``close()``s the clips when the stage ends."""
-    from training.latents import latent_clips
-
     dataset, sampler = (vpt_stream if single_player else duet_stream)(data_dir, cfg, sc.num_frames, seed,
                                                                       rescan_s=sc.rescan_s)
-    clips = latent_clips(dataset, cfg, vae, Path(out) / "latents", canonical_dir=Path(data_dir) / "duet")
+    clips = _stage_latent_clips(out, data_dir, cfg, vae, dataset)
     t0 = time.perf_counter()
     n = clips.build_for_stage(deadline)
     logger.info("latent cache: %d videos ready in %.0f s (%s)", n, time.perf_counter() - t0, dict(clips.cache.stats))
@@ -446,8 +451,6 @@ def heldout_batches(out: Path, data_dir: Path, cfg: WorldModelConfig, vae, prepa
                     batch_size: int, count: int, seed: int, single_player: bool) -> list[dict]:
     """``count`` fixed DiT batches (``prepare``d) of the data's test split, drawn once with ``seed``; the latent
     cache of ``out/latents`` serves them as it serves training. Raises if the test split has no episodes."""
-    from training.latents import latent_clips
-
     why = (f"test_every > 0 needs held-out episodes, but {data_dir} has none in its test split (collect with "
            f"--test-fraction > 0, or set the stage's test_every to 0)")
     try:
@@ -457,7 +460,7 @@ def heldout_batches(out: Path, data_dir: Path, cfg: WorldModelConfig, vae, prepa
         raise ValueError(f"{why}: {err}") from None
     if not dataset.valid_ids:
         raise ValueError(why)
-    clips = latent_clips(dataset, cfg, vae, Path(out) / "latents", canonical_dir=Path(data_dir) / "duet")
+    clips = _stage_latent_clips(out, data_dir, cfg, vae, dataset)
     try:
         clips.build_for_stage(None)
         return [prepare(clips.next_batch(sampler, batch_size, num_frames)) for _ in range(count)]
