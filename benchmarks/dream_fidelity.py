@@ -23,6 +23,9 @@ the training mix). Metrics (pure numpy / OpenCV functions below, no model), per 
   dream = 0 exactly, a time-reversed dream = -1 exactly, a mirrored turn < 0.
 * ``frozen_fraction``: of the steps where the engine's view changes > 2 grey levels, the share where the
   dream's changes < 0.5.
+* ``drift_fraction``: the mirror image: of the steps where the engine's view changes < 0.5 grey levels (nothing
+  moves), the share where the dream's changes > 2 (``stand_still``, the partner programs once the partner
+  stands, mining and placing between clicks).
 * ``sharpness_ratio``: mean |Laplacian| of the dream's frames over the engine's.
 * ``psnr_db``: dream frame vs engine frame.
 * partner agreement: the shipped ``visible`` / ``position`` judges on dream frames (and on engine frames,
@@ -75,6 +78,8 @@ SURFACES = ("grass", "snow", "sand", "red_sand", "normal")
 # Thresholds of the metrics (grey levels 0..255 unless said otherwise).
 FROZEN_DREAM_MAX = 0.5  # a dream step changing less than this ...
 FROZEN_ENGINE_MIN = 2.0  # ... while the engine's changes more than this is "frozen"
+DRIFT_ENGINE_MAX = 0.5  # an engine step changing less than this (a still view) ...
+DRIFT_DREAM_MIN = 2.0  # ... while the dream's changes more than this is "drifting"
 VALID_SCORE = 0.25  # engine direction score from which a step's motion counts as visible
 MIN_MOTION = (0.5, 0.5, 0.005)  # |yaw| deg, |pitch| deg, |log zoom|: below all three, no motion to agree with
 MAX_MOTION = (24.0, 24.0, 0.15)  # beyond the searched range on any axis: the fit ran off (no trust)
@@ -130,6 +135,13 @@ def frozen_T(dream_change_T: np.ndarray, engine_change_T: np.ndarray) -> tuple[n
     moved (> ``FROZEN_ENGINE_MIN``), the steps the frozen fraction counts."""
     counted = np.asarray(engine_change_T) > FROZEN_ENGINE_MIN
     return counted & (np.asarray(dream_change_T) < FROZEN_DREAM_MAX), counted
+
+
+def drift_T(dream_change_T: np.ndarray, engine_change_T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(drifting, counted): per step, whether the dream changed (> ``DRIFT_DREAM_MIN``) and whether the engine's
+    view stood still (< ``DRIFT_ENGINE_MAX``), the steps the drift fraction counts (``frozen_T`` mirrored)."""
+    counted = np.asarray(engine_change_T) < DRIFT_ENGINE_MAX
+    return counted & (np.asarray(dream_change_T) > DRIFT_DREAM_MIN), counted
 
 
 def ratio(num: float, den: float) -> float | None:
@@ -379,6 +391,9 @@ PROGRAMS: dict[str, Program] = {p.name: p for p in (
                                    "random turns of at most 15 deg, pitch pulled back towards level"),
     Program("bot", 256, "both", "one scripted bot episode of the training mix (both players), every k ticks of "
                                 "the bots' actions merged into one env step"),
+    # last, so that adding it (session 47) left every earlier program's start states as they were
+    # (``assign_states``' cursors carry over from program to program)
+    Program("stand_still", 64, "learner", "no-op: both players stand still (the engine's view does not change)"),
 )}
 
 
@@ -400,7 +415,7 @@ def _distance(infos: dict) -> float:
 
 def learner_action(name: str, t: int) -> dict:
     """Step t's action of the learner in a ``"learner"`` program."""
-    fixed = {"forward": {"forward": 1}, "back": {"back": 1}, "strafe_left": {"left": 1},
+    fixed = {"stand_still": {}, "forward": {"forward": 1}, "back": {"back": 1}, "strafe_left": {"left": 1},
              "strafe_right": {"right": 1}, "jump": {"jump": 1}, "sprint_forward": {"forward": 1, "sprint": 1},
              "yaw_right_5": {"camera": (0.0, 5.0)}, "yaw_left_5": {"camera": (0.0, -5.0)},
              "yaw_right_15": {"camera": (0.0, 15.0)}, "yaw_left_15": {"camera": (0.0, -15.0)}}
@@ -901,6 +916,7 @@ def summarize(parts: Sequence[tuple[Scored, np.ndarray]]) -> dict:
     valid = cat(lambda s: s.valid).astype(bool)
     de, dd = cat(lambda s: s.dir_e), cat(lambda s: s.dir_d)
     frozen, counted = frozen_T(cd, ce)
+    drifting, still = drift_T(cd, ce)
     psnr = np.minimum(cat(lambda s: s.psnr), 99.0)
     me, md = cat(lambda s: s.motion_e).reshape(-1, 3), cat(lambda s: s.motion_d).reshape(-1, 3)
     out = {
@@ -913,6 +929,8 @@ def summarize(parts: Sequence[tuple[Scored, np.ndarray]]) -> dict:
         "direction_score_dream": _r(dd[valid].mean()) if valid.any() else None,
         "frozen_fraction": _r(ratio(frozen.sum(), counted.sum())),
         "frozen_counted_steps": int(counted.sum()),
+        "drift_fraction": _r(ratio(drifting.sum(), still.sum())),
+        "drift_counted_steps": int(still.sum()),
         "sharpness_ratio": _r(ratio(sd.sum(), se.sum())),
         "sharpness_engine": _r(se.mean(), 2), "sharpness_dream": _r(sd.mean(), 2),
         "psnr_db": _r(psnr.mean(), 2),
@@ -1230,6 +1248,8 @@ def run(model_specs: Sequence[str], program_names: Sequence[str], setup: Setup, 
                                        "or unrelated, < 0 = reversed",
                 "frozen_fraction": f"of the steps where the engine changes > {FROZEN_ENGINE_MIN} grey levels, the "
                                    f"share where the dream changes < {FROZEN_DREAM_MAX}",
+                "drift_fraction": f"of the steps where the engine changes < {DRIFT_ENGINE_MAX} grey levels, the "
+                                  f"share where the dream changes > {DRIFT_DREAM_MIN}",
                 "sharpness_ratio": "mean |4-neighbour Laplacian| of the dream's frames / the engine's",
                 "psnr_db": "dream vs engine frame, RGB, mean over steps (capped at 99)",
                 "visible_/position_agreement": "judge answer == engine ground truth, on partner programs and "
@@ -1260,28 +1280,31 @@ def _fmt(v, nd=2, width=6) -> str:
 
 
 def print_tables(result: dict) -> None:
-    """Per model: program x (view-change ratio and direction agreement per window, frozen fraction, sharpness
-    ratio, PSNR, partner agreement, FD), then per surface."""
+    """Per model: program x (view-change ratio and direction agreement per window, frozen and drift fractions,
+    sharpness ratio, PSNR, partner agreement, FD), then per surface."""
     windows = result["setup"]["windows"]
     for name, res in result["results"].items():
         print(f"\n== {name} ==")
         wh = " ".join(f"{w:>6s}" for w in windows)
         print(f"{'':16s} {'view-change ratio':^{7 * len(windows)}s}| {'direction agreement':^{7 * len(windows)}s}| "
-              f"{'all steps':^50s}")
-        print(f"{'program':16s} {wh} | {wh} | frozen  sharp   PSNR  vis_d  vis_e  pos_d  pos_e     FD")
+              f"{'all steps':^57s}")
+        print(f"{'program':16s} {wh} | {wh} | frozen  drift  sharp   PSNR  vis_d  vis_e  pos_d  pos_e     FD")
         for prog, row in res["programs"].items():
             vc = " ".join(_fmt(row["windows"].get(w, {}).get("view_change_ratio")) for w in windows)
             da = " ".join(_fmt(row["windows"].get(w, {}).get("direction_agreement")) for w in windows)
             a = row["all"]
-            print(f"{prog:16s} {vc} | {da} | {_fmt(a['frozen_fraction'])} {_fmt(a['sharpness_ratio'])} "
+            print(f"{prog:16s} {vc} | {da} | {_fmt(a['frozen_fraction'])} {_fmt(a['drift_fraction'])} "
+                  f"{_fmt(a['sharpness_ratio'])} "
                   f"{_fmt(a['psnr_db'], 1)} {_fmt(a.get('visible_agreement_dream'))} "
                   f"{_fmt(a.get('visible_agreement_engine'))} {_fmt(a.get('position_agreement_dream'))} "
                   f"{_fmt(a.get('position_agreement_engine'))} {_fmt(a.get('frechet'), 1)}")
-        print(f"{'surface':16s} {'vc':>6s} {'dir':>6s} frozen  sharp   PSNR  vis_d  vis_e  pos_d  pos_e     FD  steps")
+        print(f"{'surface':16s} {'vc':>6s} {'dir':>6s} frozen  drift  sharp   PSNR  vis_d  vis_e  pos_d  pos_e     FD  "
+              "steps")
         rows = list(res["surfaces"].items()) + list(res["partner_at_start"].items()) + [("overall", res["overall"])]
         for surf, a in rows:
             print(f"{surf:16s} {_fmt(a['view_change_ratio'])} {_fmt(a['direction_agreement'])} "
-                  f"{_fmt(a['frozen_fraction'])} {_fmt(a['sharpness_ratio'])} {_fmt(a['psnr_db'], 1)} "
+                  f"{_fmt(a['frozen_fraction'])} {_fmt(a.get('drift_fraction'))} {_fmt(a['sharpness_ratio'])} "
+                  f"{_fmt(a['psnr_db'], 1)} "
                   f"{_fmt(a.get('visible_agreement_dream'))} {_fmt(a.get('visible_agreement_engine'))} "
                   f"{_fmt(a.get('position_agreement_dream'))} {_fmt(a.get('position_agreement_engine'))} "
                   f"{_fmt(a.get('frechet'), 1)} {a['steps']:6d}")

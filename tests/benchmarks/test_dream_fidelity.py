@@ -56,6 +56,30 @@ def test_frozen_dream_has_view_change_ratio_zero_and_frozen_fraction_one():
     assert df.ratio(1.0, 0.0) is None  # nothing to compare with
 
 
+def test_drifting_dream_on_a_still_engine_has_drift_fraction_one():
+    still = np.repeat(_scene_HW3(0)[None], 6, axis=0)  # the engine stands still: every step changes 0
+    drifting = np.stack([np.clip(f.astype(int) + 4 * i, 0, 255) for i, f in enumerate(still)]).astype(np.uint8)
+    ce, cd = df.view_change_T(still), df.view_change_T(drifting)
+    assert (ce < df.DRIFT_ENGINE_MAX).all() and (cd > df.DRIFT_DREAM_MIN).all()
+    is_drifting, counted = df.drift_T(cd, ce)
+    assert counted.all() and df.ratio(is_drifting.sum(), counted.sum()) == 1.0
+    # the engine against itself, and a frozen dream of it: nothing drifts
+    assert df.drift_T(ce, ce)[0].sum() == 0
+    # a moving engine is not counted, whatever the dream does
+    moving = df.view_change_T(_moving_THW3((4.0, 0.0, 0.0)))
+    assert df.drift_T(moving, moving)[1].sum() == 0
+
+
+def test_stand_still_program_is_the_no_op():
+    from solaris_env.spaces import CAMERA_KEY, noop
+
+    assert df.PROGRAMS["stand_still"].kind == "learner"
+    action, want = df.learner_action("stand_still", 5), noop()
+    assert set(action) == set(want)
+    assert all(np.array_equal(action[k], want[k]) for k in want if k != CAMERA_KEY)
+    assert np.array_equal(action[CAMERA_KEY], np.zeros(2, np.float32))
+
+
 def test_sharpness_of_a_blurred_copy_is_lower():
     import cv2
 
@@ -235,6 +259,18 @@ def test_assign_states_puts_a_normal_world_first_and_partner_programs_in_view():
             assert all(states[i].in_view for i in idx)
     used = {i for v in out.values() for i in v}
     assert {states[i].world for i in used} == set(df.WORLD_CLASSES)
+
+
+def test_stand_still_comes_last_and_leaves_the_other_programs_start_states():
+    """The assignment's cursors carry over between programs, so a program added in the middle would move the
+    start states of every later one and break comparisons with earlier results; ``stand_still`` (session 47) is
+    last."""
+    states = [_FakeState(w, v) for w in df.WORLD_CLASSES for v in (True, False)] + \
+             [_FakeState("normal", v) for v in (True, False)]
+    programs = list(df.PROGRAMS.values())
+    assert programs[-1].name == "stand_still"
+    with_it, without = df.assign_states(states, programs, 3, 2), df.assign_states(states, programs[:-1], 3, 2)
+    assert {k: v for k, v in with_it.items() if k != "stand_still"} == without
 
 
 def test_model_specs_and_labels_never_absolute():
