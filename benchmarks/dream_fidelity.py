@@ -1303,7 +1303,7 @@ def print_tables(result: dict) -> None:
         rows = list(res["surfaces"].items()) + list(res["partner_at_start"].items()) + [("overall", res["overall"])]
         for surf, a in rows:
             print(f"{surf:16s} {_fmt(a['view_change_ratio'])} {_fmt(a['direction_agreement'])} "
-                  f"{_fmt(a['frozen_fraction'])} {_fmt(a.get('drift_fraction'))} {_fmt(a['sharpness_ratio'])} "
+                  f"{_fmt(a['frozen_fraction'])} {_fmt(a['drift_fraction'])} {_fmt(a['sharpness_ratio'])} "
                   f"{_fmt(a['psnr_db'], 1)} "
                   f"{_fmt(a.get('visible_agreement_dream'))} {_fmt(a.get('visible_agreement_engine'))} "
                   f"{_fmt(a.get('position_agreement_dream'))} {_fmt(a.get('position_agreement_engine'))} "
