@@ -11,7 +11,7 @@ worlds, the partner in view or the learner turned away) the real engine (``RealP
 are recorded and the dream (``DreamParallelEnv``, started from the same ``EngineState``) is fed exactly the
 same ones. The learner's (Alpha's) two frame sequences are then compared step by step (``PROGRAMS``: walks,
 turns, pitch, jump, sprint, the partner walking, mining, placing, random play, a scripted bot episode of
-the training mix). Metrics (pure numpy / OpenCV functions below, no model), per program and step window
+the training mix, standing still). Metrics (pure numpy / OpenCV functions below, no model), per program and step window
 (``WINDOWS``) and per start-world surface (grass, snow, sand, red_sand, normal):
 
 * ``view_change_ratio``: mean |frame_t - frame_t-1| (grey levels) of the dream over the engine's.
