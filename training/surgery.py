@@ -180,16 +180,18 @@ def official_dit(model: str | Path, dest: str | Path, seed: int = 0) -> Path:
 
 
 def install_default(model: str | Path, dest: str | Path | None = None, extra_files: tuple = (),
-                    action_guidance: float | None = None) -> Path:
+                    action_guidance: float | None = None, noise_warp: float | None = None) -> Path:
     """Copy a stage's ``model/`` (weights, either layout, + config; a ``lineage.json`` beside them comes along)
     and ``extra_files`` (training log, eval summary) to the package's default-model directory, atomically
     (the env loads it when no checkpoint is named). ``action_guidance`` (None keeps the model's) is written into
     the installed config's sampler (``SamplerConfig.action_guidance``, a rollout setting: the weights are the
-    same)."""
+    same), and so is ``noise_warp`` (``SamplerConfig.noise_warp``)."""
     model, dest = Path(model), Path(dest) if dest else DEFAULT_MODEL_DIR
     loaded = WorldModel.load(model)  # refuse to install anything that does not load
     if action_guidance is not None:  # SamplerConfig validates the value (a clear error naming the field)
         loaded = loaded.with_sampler(dataclasses.replace(loaded.config.sampler, action_guidance=float(action_guidance)))
+    if noise_warp is not None:  # validated by SamplerConfig and WorldModelConfig (it needs the camera warp)
+        loaded = loaded.with_sampler(dataclasses.replace(loaded.config.sampler, noise_warp=float(noise_warp)))
     if (model / "lineage.json").is_file():
         extra_files = (model / "lineage.json", *extra_files)
     dest.parent.mkdir(parents=True, exist_ok=True)

@@ -305,9 +305,15 @@ class SamplerConfig:
     # guidance with "do nothing" as the null action. A no-op step is unchanged; g > 1 costs one more DiT pass per
     # sampler step. A rollout setting.
     action_guidance: float = 1.0
+    # Warped sampling noise (ours; ``noise_warp``, docs/model.md §5.3): the share rho of each latent frame's sampler
+    # noises that is the previous frame's, moved by whole latent pixels with the camera turn (fresh in the border
+    # a turn uncovers): noise = rho * moved + sqrt(1 - rho^2) * fresh. 0 = fresh noise for every frame (the
+    # reference). Needs the camera warp (its pixels per degree). A rollout setting.
+    noise_warp: float = 0.0
 
     def __post_init__(self):
         _require(0.0 <= self.renoise_eta <= 1.0, f"renoise_eta must be in [0, 1], got {self.renoise_eta}")
+        _require(0.0 <= self.noise_warp <= 1.0, f"noise_warp must be in [0, 1], got {self.noise_warp}")
         _require(math.isfinite(self.action_guidance) and self.action_guidance >= 0,
                  f"action_guidance must be a finite number >= 0, got {self.action_guidance}")
 
@@ -341,6 +347,9 @@ class WorldModelConfig:
                  f"num_players={self.num_players} exceeds dit.max_players={self.dit.max_players}")
         _require(self.action.num_action_blocks <= self.dit.num_layers,
                  f"action.num_action_blocks={self.action.num_action_blocks} > dit.num_layers={self.dit.num_layers}")
+        _require(self.sampler.noise_warp == 0.0 or self.dit.camera_warp_enabled,
+                 f"sampler.noise_warp={self.sampler.noise_warp} moves the noise by the camera warp's pixels per "
+                 f"degree; it needs dit.camera_warp on")
 
     # -- derived sizes (the only place they are computed) --------------------------------------
     @property

@@ -52,7 +52,9 @@ any world index, no recompilation) while the others continue.
 Noise keys (tests replicate them): world b starts from ``key_b = jax.random.split(rng, B)[b]`` (raw
 uint32 keys); each latent frame does ``key_b, frame_key = split(key_b)`` and
 ``k_noise, k_renoise = split(frame_key)``; the initial noise is ``normal(k_noise, (P, 1, h, w, C))``
-and ``k_renoise`` goes to ``sampler.sample_frame``.
+and ``k_renoise`` goes to ``sampler.sample_frame``. With warped noise (``SamplerConfig.noise_warp`` > 0) the
+frame's draws are ``normal(frame_key, (P, S, h, w, C))`` instead (S = the initial noise and one re-noising per
+sampler step), mixed with the previous frame's moved by the turn (``noise_warp``); the state carries them.
 
 First-frame conditioning as a table. The conditioning of latent frame i is the VAE encoding of the
 video [first_frame, gray, gray, ...] (``conditioning``). The VAE encoder is causal with a finite
@@ -78,7 +80,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import nnx, struct
 
-from solaris_env.world_model import checkpoint, kv_cache, sampler
+from solaris_env.world_model import camera, checkpoint, kv_cache, noise_warp, sampler
 from solaris_env.world_model.components import COMPONENTS, abstract_modules
 from solaris_env.world_model.conditioning import first_frame_cond_next, first_frame_cond_start
 from solaris_env.world_model.config import SamplerConfig, VAEConfig, WorldModelConfig, preset
@@ -168,6 +170,10 @@ class WorldState:
     vae_cache: Any  # streaming VAE-decoder cache, leaves (B, P, ...)
     latent_BP1hwC: jax.Array  # (B, P, 1, h, w, C) f32: the last generated latent frame (the next step commits it)
     frame0_BPHW3: jax.Array  # (B, P, H, W, 3) uint8: latent frame 0 decoded (init / reset)
+    # warped sampling noise only (``SamplerConfig.noise_warp`` > 0; None otherwise): the last latent frame's
+    # noises (S = its initial noise and one re-noising draw per sampler step) and the turn's carried sub-pixel shift
+    noise_BPShwC: jax.Array | None = None  # (B, P, S, h, w, C) f32
+    noise_shift_BP2: jax.Array | None = None  # (B, P, 2) f32, (down, right) latent pixels in [-1/2, 1/2)
 
     @property
     def num_worlds(self) -> int:
@@ -207,6 +213,7 @@ class Programs:
         self.graphdefs = graphdefs
         self.unroll = unroll  # straight-line sampler steps (for XLA's cost analysis only)
         self.timesteps = sampler.ar_schedule(cfg.sampler)
+        self.noise_warp = float(cfg.sampler.noise_warp)  # 0: fresh noise for every frame (the reference)
         self.cond_frames = steady_cond_index(cfg.vae) + 1
         # the DiT split into (blocks, rest); the programs merge it with shape-only blocks (never read)
         self._dit_graphdef, blocks, _ = nnx.split(abstract_modules(cfg)[0], nnx.PathContains("blocks"), ...)
@@ -264,26 +271,58 @@ class Programs:
         return jax.lax.dynamic_slice_in_dim(ws.cond_BPFhwC, index, 1, axis=1)
 
     def _noise(self, frame_key, num_players: int):
-        """(initial noise (P, 1, h, w, C), re-noising key) of one latent frame."""
+        """(initial noise (P, 1, h, w, C), re-noising key) of one latent frame (fresh noise)."""
         cfg = self.cfg
         k_noise, k_renoise = jax.random.split(frame_key)
         shape = (num_players, 1, cfg.latent_height, cfg.latent_width, cfg.latent_channels)
         return jax.random.normal(k_noise, shape, jnp.float32), k_renoise
 
-    def _sample(self, dit, parts, z, k_renoise, start, first_v=None):
+    def _fresh_noises(self, frame_key, num_players: int):
+        """(P, S, h, w, C): all the noise draws of one latent frame at once (warped noise)."""
         cfg = self.cfg
+        shape = (num_players, len(self.timesteps), cfg.latent_height, cfg.latent_width, cfg.latent_channels)
+        return jax.random.normal(frame_key, shape, jnp.float32)
+
+    def _warped_noises(self, ws: WorldState, actions_PkA, frame_key):
+        """(noises (P, S, h, w, C), carried shift (P, 2)) of latent frame i with warped noise: frame i - 1's moved
+        by this step's camera turn (``noise_warp.carry_noise``; the turn read as the camera warp reads it)."""
+        cfg = self.cfg
+        mouse = self._window(ws, actions_PkA)[:, :, cfg.action.keyboard_dim:]
+        shift = camera.content_shift(camera.frame_turns(mouse, cfg.frames_per_step), cfg.dit.camera_warp)
+        fresh = self._fresh_noises(frame_key, ws.latent_BP1hwC.shape[0])
+        return noise_warp.carry_noise(ws.noise_BPShwC, ws.noise_shift_BP2, fresh, shift, self.noise_warp)
+
+    @staticmethod
+    def _split_noises(noises_PShwC):
+        """(initial noise (P, 1, h, w, C), re-noising draws (S - 1, P, 1, h, w, C)) of stacked noises."""
+        return noises_PShwC[:, :1], jnp.moveaxis(noises_PShwC[:, 1:], 1, 0)[:, :, None]
+
+    def _frame_noise(self, ws: WorldState, actions_PkA):
+        """(initial noise, re-noising: a key with fresh noise or the draws with warped noise) of frame i."""
+        _, frame_key = jax.random.split(ws.key_B)
+        if not self.noise_warp:
+            return self._noise(frame_key, ws.latent_BP1hwC.shape[0])
+        return self._split_noises(self._warped_noises(ws, actions_PkA, frame_key)[0])
+
+    def _sample_x0(self, denoise, z, renoise, first_v=None):
+        """The sampler over ``self.timesteps``; ``renoise`` as ``_frame_noise`` returns it."""
+        warped = bool(self.noise_warp)
+        return sampler.sample_frame(denoise, z, None if warped else renoise, self.timesteps,
+                                    self.cfg.sampler.num_train_timesteps, unroll=self.unroll, first_v=first_v,
+                                    eta=self.cfg.sampler.renoise_eta, renoise=renoise if warped else None)
+
+    def _sample(self, dit, parts, z, renoise, start, first_v=None):
         denoise = lambda x, t: self._velocity(dit, x, t, parts, start)
-        return sampler.sample_frame(denoise, z, k_renoise, self.timesteps, cfg.sampler.num_train_timesteps,
-                                    unroll=self.unroll, first_v=first_v, eta=cfg.sampler.renoise_eta)
+        return self._sample_x0(denoise, z, renoise, first_v=first_v)
 
     def _first_pass(self, dit, ws: WorldState, actions_PkA):
         """The fused pass of a step: commit latent frame i - 1 (``ws.latent_BP1hwC`` at t = 0) and the
         first denoising pass of frame i, as one pass of two frames (``WorldDiT.decode``, ``commit=1``).
 
-        Returns (z: frame i's initial noise, k_renoise, v of that pass, the cache with frame i - 1)."""
+        Returns (z: frame i's initial noise, its re-noising (``_frame_noise``), v of that pass, the cache with
+        frame i - 1)."""
         i = ws.frame_index_B
-        _, frame_key = jax.random.split(ws.key_B)
-        z, k_renoise = self._noise(frame_key, ws.latent_BP1hwC.shape[0])
+        z, k_renoise = self._frame_noise(ws, actions_PkA)
         x = jnp.concatenate([ws.latent_BP1hwC, z], axis=1)  # (P, 2, h, w, C): [committed i - 1 (x0) ; noisy i]
         cond = jnp.concatenate([self._cond_at(ws, i - 1), self._cond_at(ws, i)], axis=1)
         actions = jnp.concatenate([ws.actions_BPWA, actions_PkA.astype(jnp.float32)], axis=1)  # windows i-1, i
@@ -306,9 +345,7 @@ class Programs:
         guided = lambda v_act, v_noop: v_noop + g * (v_act - v_noop)
         first_v = guided(v, self._velocity(dit, z, self.timesteps[0], noop, i))
         denoise = lambda x, t: guided(self._velocity(dit, x, t, parts, i), self._velocity(dit, x, t, noop, i))
-        x0 = sampler.sample_frame(denoise, z, k_renoise, self.timesteps, self.cfg.sampler.num_train_timesteps,
-                                  unroll=self.unroll, first_v=first_v, eta=self.cfg.sampler.renoise_eta)
-        return x0, cache
+        return self._sample_x0(denoise, z, k_renoise, first_v=first_v), cache
 
     def _first_pass_world(self, params, ws: WorldState, actions_PkA):
         return self._first_pass(self._modules(params)[:2], ws, actions_PkA)[2:]
@@ -321,7 +358,10 @@ class Programs:
 
     def _advance(self, ws: WorldState, actions_PkA, x0_P1hwC, dit_cache, vae_cache) -> WorldState:
         """The bookkeeping after a step: next key, frame index, action buffer, caches, latent."""
-        next_key, _ = jax.random.split(ws.key_B)
+        next_key, frame_key = jax.random.split(ws.key_B)
+        if self.noise_warp:  # the noises the step sampled with (recomputed: a pure function of the same inputs)
+            noises, shift = self._warped_noises(ws, actions_PkA, frame_key)
+            ws = ws.replace(noise_BPShwC=noises, noise_shift_BP2=shift)
         return ws.replace(key_B=next_key, frame_index_B=ws.frame_index_B + 1,
                           actions_BPWA=self._window(ws, actions_PkA), dit_cache=dit_cache, vae_cache=vae_cache,
                           latent_BP1hwC=x0_P1hwC)
@@ -351,12 +391,19 @@ class Programs:
         start = jnp.zeros((), jnp.int32)
         parts = (cond[:, :1], context_kv, actions, cache)
         key, frame_key = jax.random.split(key)
-        x0 = self._sample(dit, parts, *self._noise(frame_key, first.shape[0]), start)  # committed by step 1
+        p = first.shape[0]
+        noises = shift = None
+        if self.noise_warp:  # warped noise starts from fresh draws
+            noises, shift = self._fresh_noises(frame_key, p), jnp.zeros((p, 2), jnp.float32)
+            noise = self._split_noises(noises)
+        else:
+            noise = self._noise(frame_key, p)
+        x0 = self._sample(dit, parts, *noise, start)  # committed by step 1
         video, vae_cache = vae.decode_step(x0, None)  # latent frame 0 -> 1 video frame
         return WorldState(key_B=key, frame_index_B=start + 1, actions_BPWA=actions, context_BPMC=context,
                           context_kv=context_kv,
                           cond_BPFhwC=cond, dit_cache=cache, vae_cache=vae_cache, latent_BP1hwC=x0,
-                          frame0_BPHW3=frames_to_uint8(video[:, 0]))
+                          frame0_BPHW3=frames_to_uint8(video[:, 0]), noise_BPShwC=noises, noise_shift_BP2=shift)
 
     # -- batched over worlds (what gets jitted) -------------------------------------------------------
     def init(self, params, first_frames_BPHW3, first_actions_BPA, rng):

@@ -1,6 +1,7 @@
 """``solaris-train sprint`` on the CPU with the ``test`` preset: two ~1-minute sprints, the second continuing the
 first, each training while the engine records episodes; plus the sharded checkpoint writer and the planner."""
 
+import dataclasses
 import json
 import shutil
 
@@ -244,6 +245,23 @@ def test_install_writes_the_action_guidance_into_the_shipped_sampler(test_model,
     with pytest.raises(SystemExit, match="action_guidance must be a finite number >= 0, got -1.0"):
         cli.main(["install", str(src), "--dest", str(tmp_path / "bad"), "--action-guidance", "-1"])
     assert not (tmp_path / "bad").exists()
+
+
+def test_install_writes_the_noise_warp_into_the_shipped_sampler(test_model, tmp_path):
+    from solaris_env.world_model.world_model import WorldModel
+
+    src = checkpoint.save(tmp_path / "stage" / "model", test_model.config, _params(test_model),
+                          storage_dtype="float16")
+    with pytest.raises(SystemExit, match="noise_warp=0.5 .* needs dit.camera_warp on"):  # the test preset has none
+        cli.main(["install", str(src), "--dest", str(tmp_path / "bad"), "--noise-warp", "0.5"])
+    assert not (tmp_path / "bad").exists()
+    cfg = test_model.config.replace(dit=dataclasses.replace(test_model.config.dit, camera_warp=(0.1, 0.06)))
+    src = checkpoint.save(tmp_path / "warp" / "model", cfg, _params(WorldModel.from_config(cfg, seed=0)),
+                          storage_dtype="float16")
+    assert cli.main(["install", str(src), "--dest", str(tmp_path / "w"), "--noise-warp", "0.9"]) == 0
+    installed = WorldModel.load(tmp_path / "w")
+    assert installed.config.sampler.noise_warp == 0.9
+    assert installed.config.replace(sampler=cfg.sampler) == cfg  # nothing else moved
 
 
 @pytest.mark.slow

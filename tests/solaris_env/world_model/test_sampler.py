@@ -187,3 +187,20 @@ def test_eta_mixes_fresh_and_predicted_noise():
         sampler.sample_frame(denoise, z0, key, [1000.0, 0.0], eta=1.5)
     with pytest.raises(ValueError, match="renoise_eta must be in"):
         SamplerConfig(renoise_eta=-0.1)
+
+
+def test_given_renoise_draws_replace_the_keys_draws():
+    """``renoise`` = the draws the key would give: the same x0; other draws: another x0; the key is ignored."""
+    z = jax.random.normal(jax.random.key(0), SHAPE)
+    key = jax.random.key(1)
+    timesteps = sampler.ar_schedule(SamplerConfig())
+    x0_target = jnp.ones(SHAPE)
+    denoise = lambda x, t: (x - 0.5 * x0_target) / (t / 1000.0) + 0.1 * x  # x0 depends on the noisy input
+    draws = jnp.stack([jax.random.normal(k, SHAPE) for k in jax.random.split(key, len(timesteps) - 1)])
+    want = sampler.sample_frame(denoise, z, key, timesteps)
+    got = sampler.sample_frame(denoise, z, None, timesteps, renoise=draws)
+    np.testing.assert_allclose(got, want, atol=1e-6, rtol=0)
+    other = sampler.sample_frame(denoise, z, key, timesteps, renoise=-draws)
+    assert not np.allclose(other, want)
+    with pytest.raises(ValueError, match="renoise"):
+        sampler.sample_frame(denoise, z, None, timesteps, renoise=draws[1:])
