@@ -42,6 +42,7 @@ side-by-side video ``dream_fidelity.mp4`` next to it, and prints a compact table
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import functools
 import math
 import os
@@ -799,30 +800,64 @@ class WarpFormula:
         return np.stack(frames)
 
 
+SAMPLER_OVERRIDE = "@"  # "SPEC@noise_warp=0" / "SPEC@action_guidance=1.5": SPEC under another rollout setting
+
+
+def split_spec(spec: str) -> tuple[str, dict[str, float]]:
+    """``"SPEC@name=value,name=value"`` -> (SPEC, {name: value}): ``SamplerConfig`` fields (numbers) to change
+    for the rollouts, the weights unchanged, so that a setting is measured with and without in one run."""
+    base, sep, rest = spec.partition(SAMPLER_OVERRIDE)
+    if not sep:
+        return spec, {}
+    from solaris_env.world_model.config import SamplerConfig
+
+    fields = {f.name for f in dataclasses.fields(SamplerConfig)}
+    overrides = {}
+    for item in rest.split(","):
+        name, eq, value = item.partition("=")
+        if not eq or name not in fields:
+            raise ValueError(f"--model {spec!r}: after '@' give SamplerConfig fields as name=value "
+                             f"(one of {sorted(fields)})")
+        try:
+            overrides[name] = float(value)
+        except ValueError:
+            raise ValueError(f"--model {spec!r}: {name} must be a number, got {value!r}") from None
+    return base, overrides
+
+
 def model_label(spec: str) -> str:
     """The name in the results of a model spec (``"default"``, ``"PATH"``, ``"preset:NAME"``: random init,
-    smoke runs, or ``formula:warp``, ``WarpFormula``): ``shipped default``, a repository-relative path, never
-    absolute."""
+    smoke runs, or ``formula:warp``, ``WarpFormula``; any of them but the formula with ``@name=value``
+    sampler overrides, ``split_spec``): ``shipped default``, a repository-relative path, never absolute."""
+    spec, overrides = split_spec(spec)
+    suffix = "".join(f", sampler {k} {v:g}" for k, v in overrides.items())
     if spec == "default":
-        return "shipped default"
+        return "shipped default" + suffix
     if spec == FORMULA:
         return "formula: the default's warps alone, no model"
     if spec.startswith("preset:"):
-        return f"preset {spec.split(':', 1)[1]} (random init)"
-    return portable_path(spec, parts=3)  # outside the repository: its last three components only
+        return f"preset {spec.split(':', 1)[1]} (random init)" + suffix
+    return portable_path(spec, parts=3) + suffix  # outside the repository: its last three components only
 
 
 def load_model(spec: str):
     """The world model of a spec (``model_label``)."""
     from solaris_env.dream_env import build_model
 
-    if spec == "default":
-        return build_model(None, None, num_players=2)
+    spec, overrides = split_spec(spec)
     if spec == FORMULA:
+        if overrides:
+            raise ValueError(f"{FORMULA} has no sampler to override")
         return WarpFormula(build_model(None, None, num_players=2).config)
-    if spec.startswith("preset:"):
-        return build_model(None, spec.split(":", 1)[1], num_players=2)
-    return build_model(spec, None, num_players=2)
+    if spec == "default":
+        model = build_model(None, None, num_players=2)
+    elif spec.startswith("preset:"):
+        model = build_model(None, spec.split(":", 1)[1], num_players=2)
+    else:
+        model = build_model(spec, None, num_players=2)
+    if overrides:  # SamplerConfig and WorldModelConfig check the values (a clear error naming the field)
+        model = model.with_sampler(dataclasses.replace(model.config.sampler, **overrides))
+    return model
 
 
 # =============================================================================================
@@ -1317,8 +1352,9 @@ def main(argv: list[str] | None = None) -> dict:
     p = argparse.ArgumentParser(prog="python -m benchmarks.dream_fidelity", description=__doc__.split("\n\n")[0])
     p.add_argument("--model", action="append", default=None,
                    help="a model: 'default' (the shipped one), a checkpoint directory, 'preset:NAME' (random "
-                        "init, smoke runs) or 'formula:warp' (the default's warps alone, a reference row). Repeat "
-                        "to compare models on the same engine rollouts (default: default)")
+                        "init, smoke runs) or 'formula:warp' (the default's warps alone, a reference row); append "
+                        "'@name=value' to sample under another SamplerConfig value (e.g. default@noise_warp=0). "
+                        "Repeat to compare models on the same engine rollouts (default: default)")
     p.add_argument("--programs", nargs="+", default=list(PROGRAMS), metavar="NAME",
                    help=f"action programs (default: all): {' '.join(PROGRAMS)}")
     p.add_argument("--quick", action="store_true",

@@ -281,6 +281,24 @@ def test_model_specs_and_labels_never_absolute():
     assert not df.model_label("/somewhere/else/runs/b/model").startswith("/")
 
 
+def test_sampler_overrides_in_a_model_spec():
+    """``SPEC@name=value``: the same weights under another rollout setting, labelled so."""
+    assert df.split_spec("default@noise_warp=0") == ("default", {"noise_warp": 0.0})
+    assert df.split_spec("runs/a/model") == ("runs/a/model", {})
+    assert df.model_label("default@noise_warp=0,action_guidance=1.5") == \
+        "shipped default, sampler noise_warp 0, sampler action_guidance 1.5"
+    model = df.load_model("preset:test@action_guidance=2")
+    assert model.config.sampler.action_guidance == 2.0
+    for bad, match in (("default@eta=1", "SamplerConfig fields"), ("default@noise_warp", "SamplerConfig fields"),
+                       ("default@noise_warp=x", "must be a number")):
+        with pytest.raises(ValueError, match=match):
+            df.split_spec(bad)
+    with pytest.raises(ValueError, match="noise_warp"):  # the test preset has no camera warp to move noise by
+        df.load_model("preset:test@noise_warp=0.5")
+    with pytest.raises(ValueError, match="no sampler"):
+        df.load_model(df.FORMULA + "@noise_warp=0")
+
+
 def test_warp_formula_replays_the_warps_on_pixels():
     """The reference row: standing still keeps the frame bit for bit, a right turn moves the content left by
     the camera warp's pixels per degree, walking forward magnifies the view about its centre."""
