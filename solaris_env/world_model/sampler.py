@@ -17,7 +17,8 @@ scalar f32 array and ``v`` has the shape of ``x_t``. Nothing here imports the ne
 
 Noise keys: ``sample_frame(denoise_fn, z, key, timesteps)`` splits ``key`` into one key per step
 (``jax.random.split(key, n_steps)``); step s re-noises with ``jax.random.normal(keys[s], z.shape)``
-(drawn for the last step too, where it is multiplied by sigma = 0). Tests replicate this schedule.
+(drawn for the last step too, where it is multiplied by sigma = 0). Tests replicate this schedule. A caller
+may pass the re-noising draws themselves instead (``renoise``: warped noise, ``noise_warp``).
 """
 
 from __future__ import annotations
