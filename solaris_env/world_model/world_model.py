@@ -631,6 +631,10 @@ class WorldModel:
         p = state.actions_BPWA.shape[1]
         if p != self.num_players:
             raise ValueError(f"state has {p} players; this model has num_players={self.num_players}")
+        if (state.noise_BPShwC is None) == bool(self.programs.noise_warp):
+            raise ValueError(f"state.noise_BPShwC is {'missing' if state.noise_BPShwC is None else 'set'}, but this "
+                             f"model samples with sampler.noise_warp={self._cfg.sampler.noise_warp}: pass a state "
+                             f"from init/step of a model with the same sampler setting")
 
 
 @functools.lru_cache(maxsize=8)

@@ -182,3 +182,13 @@ def test_reset_worlds_restarts_the_noise_of_the_reset_world_only(warped):
     fresh = host(warped.init(first_frames(warped, 2, seed=4), jax.random.key(11)))
     np.testing.assert_array_equal(after.noise_BPShwC[1], fresh.noise_BPShwC[1])
     np.testing.assert_array_equal(after.noise_shift_BP2[1], np.zeros((2, 2)))
+
+
+def test_a_state_of_the_other_noise_setting_is_refused(warped):
+    fresh_model = warped.with_sampler(dataclasses.replace(warped.config.sampler, noise_warp=0.0))
+    state = fresh_model.init(first_frames(warped, 1), jax.random.key(0))
+    with pytest.raises(ValueError, match="noise_BPShwC is missing.*noise_warp=1.0"):
+        warped.step(state, _actions(warped, 1))
+    state = warped.init(first_frames(warped, 1), jax.random.key(0))
+    with pytest.raises(ValueError, match="noise_BPShwC is set.*noise_warp=0.0"):
+        fresh_model.step(state, _actions(warped, 1))
