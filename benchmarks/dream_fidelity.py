@@ -1103,7 +1103,7 @@ def contact_sheet(rows: Sequence[tuple[Rollout, dict]], names: Sequence[str], sc
         every = max(1, T // 8)
         cols = list(range(0, T + 1, every))
         lines = [(f"{rollout.program} ({rollout.surface})\nengine", rollout.engine_THW3)]
-        lines += [(f"dream:\n{n}", dreams[n]) for n in names]
+        lines += [("dream:\n" + n.replace(", ", ",\n"), dreams[n]) for n in names]  # one clause per line
         for text, frames in lines:
             blocks.append(_label(np.concatenate([pad(frames[t]) for t in cols], axis=1), text, 150))
         header = np.full((14, blocks[-1].shape[1], 3), 255, np.uint8)
