@@ -188,10 +188,10 @@ def install_default(model: str | Path, dest: str | Path | None = None, extra_fil
     same), and so is ``noise_warp`` (``SamplerConfig.noise_warp``)."""
     model, dest = Path(model), Path(dest) if dest else DEFAULT_MODEL_DIR
     loaded = WorldModel.load(model)  # refuse to install anything that does not load
-    if action_guidance is not None:  # SamplerConfig validates the value (a clear error naming the field)
-        loaded = loaded.with_sampler(dataclasses.replace(loaded.config.sampler, action_guidance=float(action_guidance)))
-    if noise_warp is not None:  # validated by SamplerConfig and WorldModelConfig (it needs the camera warp)
-        loaded = loaded.with_sampler(dataclasses.replace(loaded.config.sampler, noise_warp=float(noise_warp)))
+    sampler = {name: float(v) for name, v in (("action_guidance", action_guidance), ("noise_warp", noise_warp))
+               if v is not None}
+    if sampler:  # SamplerConfig and WorldModelConfig validate the values (a clear error naming the field)
+        loaded = loaded.with_sampler(dataclasses.replace(loaded.config.sampler, **sampler))
     if (model / "lineage.json").is_file():
         extra_files = (model / "lineage.json", *extra_files)
     dest.parent.mkdir(parents=True, exist_ok=True)

@@ -297,15 +297,17 @@ class Programs:
         """(initial noise (P, 1, h, w, C), re-noising draws (S - 1, P, 1, h, w, C)) of stacked noises."""
         return noises_PShwC[:, :1], jnp.moveaxis(noises_PShwC[:, 1:], 1, 0)[:, :, None]
 
-    def _frame_noise(self, ws: WorldState, actions_PkA):
-        """(initial noise, re-noising: a key with fresh noise or the draws with warped noise) of frame i."""
+    def _step_noise(self, ws: WorldState, actions_PkA):
+        """Frame i's noise, drawn once per step: (initial noise, re-noising, carried). Fresh noise: re-noising is a
+        key and carried None; warped noise: the draws, and carried = (noises, shift) for the next state."""
         _, frame_key = jax.random.split(ws.key_B)
         if not self.noise_warp:
-            return self._noise(frame_key, ws.latent_BP1hwC.shape[0])
-        return self._split_noises(self._warped_noises(ws, actions_PkA, frame_key)[0])
+            return (*self._noise(frame_key, ws.latent_BP1hwC.shape[0]), None)
+        carried = self._warped_noises(ws, actions_PkA, frame_key)
+        return (*self._split_noises(carried[0]), carried)
 
     def _sample_x0(self, denoise, z, renoise, first_v=None):
-        """The sampler over ``self.timesteps``; ``renoise`` as ``_frame_noise`` returns it."""
+        """The sampler over ``self.timesteps``; ``renoise`` as ``_step_noise`` returns it."""
         warped = bool(self.noise_warp)
         return sampler.sample_frame(denoise, z, None if warped else renoise, self.timesteps,
                                     self.cfg.sampler.num_train_timesteps, unroll=self.unroll, first_v=first_v,
@@ -315,26 +317,27 @@ class Programs:
         denoise = lambda x, t: self._velocity(dit, x, t, parts, start)
         return self._sample_x0(denoise, z, renoise, first_v=first_v)
 
-    def _first_pass(self, dit, ws: WorldState, actions_PkA):
+    def _first_pass(self, dit, ws: WorldState, actions_PkA, z):
         """The fused pass of a step: commit latent frame i - 1 (``ws.latent_BP1hwC`` at t = 0) and the
-        first denoising pass of frame i, as one pass of two frames (``WorldDiT.decode``, ``commit=1``).
+        first denoising pass of frame i from its initial noise ``z``, as one pass of two frames
+        (``WorldDiT.decode``, ``commit=1``).
 
-        Returns (z: frame i's initial noise, its re-noising (``_frame_noise``), v of that pass, the cache with
-        frame i - 1)."""
+        Returns (v of that pass, the cache with frame i - 1)."""
         i = ws.frame_index_B
-        z, k_renoise = self._frame_noise(ws, actions_PkA)
         x = jnp.concatenate([ws.latent_BP1hwC, z], axis=1)  # (P, 2, h, w, C): [committed i - 1 (x0) ; noisy i]
         cond = jnp.concatenate([self._cond_at(ws, i - 1), self._cond_at(ws, i)], axis=1)
         actions = jnp.concatenate([ws.actions_BPWA, actions_PkA.astype(jnp.float32)], axis=1)  # windows i-1, i
         t = jnp.asarray([0.0, self.timesteps[0]], jnp.float32)
         v, cache = dit[0].decode(*self._dit_args(x, t, (cond, ws.context_kv, actions, ws.dit_cache), i - 1),
                                  commit=1, layers=dit[1])
-        return z, k_renoise, from_stream(self.cfg, v[:, :, 1:])[0], cache
+        return from_stream(self.cfg, v[:, :, 1:])[0], cache
 
-    def _denoise_world(self, params, ws: WorldState, actions_PkA):
-        """Latent frame i of one world and the DiT cache with frame i - 1 committed."""
+    def _denoise_world(self, params, ws: WorldState, actions_PkA, noise):
+        """Latent frame i of one world and the DiT cache with frame i - 1 committed; ``noise`` from
+        ``_step_noise``."""
         dit = self._modules(params)[:2]
-        z, k_renoise, v, cache = self._first_pass(dit, ws, actions_PkA)
+        z, k_renoise, _ = noise
+        v, cache = self._first_pass(dit, ws, actions_PkA, z)
         parts = (self._cond_at(ws, ws.frame_index_B), ws.context_kv, self._window(ws, actions_PkA), cache)
         g = self.cfg.sampler.action_guidance
         if g == 1.0:  # a Python float: the reference sampler, traced as before
@@ -348,7 +351,7 @@ class Programs:
         return self._sample_x0(denoise, z, k_renoise, first_v=first_v), cache
 
     def _first_pass_world(self, params, ws: WorldState, actions_PkA):
-        return self._first_pass(self._modules(params)[:2], ws, actions_PkA)[2:]
+        return self._first_pass(self._modules(params)[:2], ws, actions_PkA, self._step_noise(ws, actions_PkA)[0])
 
     def _decode_world(self, params, ws: WorldState, x0_P1hwC):
         """(frames (P, k, H, W, 3) uint8, the VAE cache)."""
@@ -356,12 +359,12 @@ class Programs:
         video, vae_cache = vae.decode_step(x0_P1hwC, ws.vae_cache)  # (P, k, H, W, 3) in [-1, 1]
         return frames_to_uint8(video), vae_cache
 
-    def _advance(self, ws: WorldState, actions_PkA, x0_P1hwC, dit_cache, vae_cache) -> WorldState:
-        """The bookkeeping after a step: next key, frame index, action buffer, caches, latent."""
-        next_key, frame_key = jax.random.split(ws.key_B)
-        if self.noise_warp:  # the noises the step sampled with (recomputed: a pure function of the same inputs)
-            noises, shift = self._warped_noises(ws, actions_PkA, frame_key)
-            ws = ws.replace(noise_BPShwC=noises, noise_shift_BP2=shift)
+    def _advance(self, ws: WorldState, actions_PkA, x0_P1hwC, dit_cache, vae_cache, carried) -> WorldState:
+        """The bookkeeping after a step: next key, frame index, action buffer, caches, latent, and with warped
+        noise the draws the step sampled with (``carried``, from ``_step_noise``)."""
+        next_key, _ = jax.random.split(ws.key_B)
+        if carried is not None:
+            ws = ws.replace(noise_BPShwC=carried[0], noise_shift_BP2=carried[1])
         return ws.replace(key_B=next_key, frame_index_B=ws.frame_index_B + 1,
                           actions_BPWA=self._window(ws, actions_PkA), dit_cache=dit_cache, vae_cache=vae_cache,
                           latent_BP1hwC=x0_P1hwC)
@@ -412,13 +415,17 @@ class Programs:
         return jax.lax.map(lambda args: self._init_world(params, *args), (first_frames_BPHW3, first_actions_BPA, keys))
 
     def step(self, params, state: WorldState, actions_BPkA):
-        x0, dit_cache = self.denoise(params, state, actions_BPkA)
+        noise = jax.vmap(self._step_noise)(state, actions_BPkA)  # drawn once: the sampler and the next state
+        x0, dit_cache = self._denoise(params, state, actions_BPkA, noise)
         frames, vae_cache = self.decode(params, state, x0)
-        return frames, jax.vmap(self._advance)(state, actions_BPkA, x0, dit_cache, vae_cache)
+        return frames, jax.vmap(self._advance)(state, actions_BPkA, x0, dit_cache, vae_cache, noise[2])
+
+    def _denoise(self, params, state: WorldState, actions_BPkA, noise):
+        return jax.vmap(self._denoise_world, in_axes=(None, 0, 0, 0))(params, state, actions_BPkA, noise)
 
     def denoise(self, params, state: WorldState, actions_BPkA):
         """Every DiT pass of a step: (x0 (B, P, 1, h, w, C), the caches with the previous frame committed)."""
-        return jax.vmap(self._denoise_world, in_axes=(None, 0, 0))(params, state, actions_BPkA)
+        return self._denoise(params, state, actions_BPkA, jax.vmap(self._step_noise)(state, actions_BPkA))
 
     def first_pass(self, params, state: WorldState, actions_BPkA):
         """The fused commit + first denoising pass alone (part of ``denoise``; timed by the benchmark)."""
