@@ -803,8 +803,8 @@ class WarpFormula:
 SAMPLER_OVERRIDE = "@"  # "SPEC@noise_warp=0" / "SPEC@action_guidance=1.5": SPEC under another rollout setting
 
 
-def split_spec(spec: str) -> tuple[str, dict[str, float]]:
-    """``"SPEC@name=value,name=value"`` -> (SPEC, {name: value}): ``SamplerConfig`` fields (numbers) to change
+def split_spec(spec: str) -> tuple[str, dict[str, int | float]]:
+    """``"SPEC@name=value,name=value"`` -> (SPEC, {name: value}): ``SamplerConfig`` fields (numbers, of each field's type) to change
     for the rollouts, the weights unchanged, so that a setting is measured with and without in one run."""
     base, sep, rest = spec.partition(SAMPLER_OVERRIDE)
     if not sep:
@@ -812,6 +812,7 @@ def split_spec(spec: str) -> tuple[str, dict[str, float]]:
     from solaris_env.world_model.config import SamplerConfig
 
     fields = {f.name for f in dataclasses.fields(SamplerConfig)}
+    defaults = SamplerConfig()
     overrides = {}
     for item in rest.split(","):
         name, eq, value = item.partition("=")
@@ -819,9 +820,11 @@ def split_spec(spec: str) -> tuple[str, dict[str, float]]:
             raise ValueError(f"--model {spec!r}: after '@' give SamplerConfig fields as name=value "
                              f"(one of {sorted(fields)})")
         try:
-            overrides[name] = float(value)
+            kind = int if isinstance(getattr(defaults, name), int) else float  # the field's own type
+            overrides[name] = kind(value)
         except ValueError:
-            raise ValueError(f"--model {spec!r}: {name} must be a number, got {value!r}") from None
+            what = "an integer" if kind is int else "a number"
+            raise ValueError(f"--model {spec!r}: {name} must be {what}, got {value!r}") from None
     return base, overrides
 
 

@@ -90,10 +90,22 @@ def _from_value(tp, value, where: str):
     return value
 
 
+# Fields deleted from the config (options that measured no gain), with the one value that the code now always
+# uses: a checkpoint written before the deletion loads when it has that value, and fails naming the field otherwise.
+RETIRED_FIELDS = {"SamplerConfig": {"renoise_eta": 1.0}}
+
+
 def config_from_dict(data: dict, cls=WorldModelConfig, where: str = "config"):
-    """Inverse of ``config_to_dict``; unknown or missing fields raise ValueError naming them."""
+    """Inverse of ``config_to_dict``; unknown or missing fields raise ValueError naming them (a retired field,
+    ``RETIRED_FIELDS``, is accepted at the value the code now uses)."""
     if not isinstance(data, dict):
         raise ValueError(f"{where} must be a JSON object, got {type(data).__name__}")
+    retired = RETIRED_FIELDS.get(cls.__name__, {})
+    for name in sorted(set(data) & set(retired)):
+        if data[name] != retired[name]:
+            raise ValueError(f"{where}.{name} = {data[name]!r}: this option was removed (it measured no gain); "
+                             f"only {retired[name]!r} loads, the behaviour the code now has")
+    data = {name: value for name, value in data.items() if name not in retired}
     hints = typing.get_type_hints(cls, vars(config_lib))
     names = {f.name for f in dataclasses.fields(cls)}
     unknown = sorted(set(data) - names)

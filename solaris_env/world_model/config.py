@@ -296,10 +296,6 @@ class SamplerConfig:
     num_train_timesteps: int = 1000  # = flow_matching.NUM_TRAIN_TIMESTEPS (a literal: this module stays jax-free)
     bidirectional_steps: int = 10
     shift: float = 5.0  # sigma' = shift*sigma / (1 + (shift-1)*sigma) for the N-step schedule
-    # The share of fresh noise when an AR step re-noises its x0 (``sampler.sample_frame``): 1 = the spec (fresh
-    # noise, the DMD-style rule a distilled generator is trained for); 0 = the predicted noise (the Euler step of
-    # the flow ODE, the usual sampler of a model trained by flow matching alone). A rollout setting.
-    renoise_eta: float = 1.0
     # Action guidance (ours; 1 = off, the reference): every denoising pass of an AR step also runs with this
     # step's actions replaced by the no-op (all zeros) and the velocity is v_noop + g (v - v_noop), classifier-free
     # guidance with "do nothing" as the null action. A no-op step is unchanged; g > 1 costs one more DiT pass per
@@ -312,7 +308,6 @@ class SamplerConfig:
     noise_warp: float = 0.0
 
     def __post_init__(self):
-        _require(0.0 <= self.renoise_eta <= 1.0, f"renoise_eta must be in [0, 1], got {self.renoise_eta}")
         _require(0.0 <= self.noise_warp <= 1.0, f"noise_warp must be in [0, 1], got {self.noise_warp}")
         _require(math.isfinite(self.action_guidance) and self.action_guidance >= 0,
                  f"action_guidance must be a finite number >= 0, got {self.action_guidance}")

@@ -46,16 +46,8 @@ def eps_from_velocity(x_t: jax.Array, v: jax.Array, sigma) -> jax.Array:
     return x_t.astype(jnp.float32) + (1.0 - sigma) * v.astype(jnp.float32)
 
 
-def sampler_step(x_t: jax.Array, v: jax.Array, sigma, sigma_next, fresh_eps: jax.Array,
-                 eta: float = 1.0) -> jax.Array:
-    """One step of the few-step sampler: predict x0 at σ, re-noise it to σ_next, f32 shaped like ``x_t``.
-
-    ``eta`` (a Python float in [0, 1]) is the share of the fresh noise ``fresh_eps`` ~ N(0, I): 1 (the spec) is
-    ``noise(x0, fresh_eps, σ_next)``; 0 re-noises with the predicted noise (``eps_from_velocity``), the Euler step
-    of the flow ODE; in between ``eta·fresh_eps + sqrt(1 − eta²)·eps_hat``. σ_next = 0 returns x0 exactly.
-    """
-    x0 = x0_from_velocity(x_t, v, sigma)
-    eps = fresh_eps
-    if eta != 1.0:  # a Python float: the spec's rule (eta = 1) is traced without the mix
-        eps = eta * eps + float(np.sqrt(1.0 - eta * eta)) * eps_from_velocity(x_t, v, sigma)
-    return noise(x0, eps, sigma_next)
+def sampler_step(x_t: jax.Array, v: jax.Array, sigma, sigma_next, fresh_eps: jax.Array) -> jax.Array:
+    """One step of the few-step sampler: predict x0 at σ and re-noise it to σ_next with the fresh noise
+    ``fresh_eps`` ~ N(0, I), ``noise(x0, fresh_eps, σ_next)``; f32 shaped like ``x_t``. σ_next = 0 returns x0
+    exactly."""
+    return noise(x0_from_velocity(x_t, v, sigma), fresh_eps, sigma_next)

@@ -87,8 +87,7 @@ def _check_timesteps(timesteps) -> np.ndarray:
 
 def sample_frame(denoise_fn: DenoiseFn, z: jax.Array, key: jax.Array | None, timesteps: Sequence[float],
                  num_train_timesteps: int = NUM_TRAIN_TIMESTEPS, unroll: bool = False,
-                 first_v: jax.Array | None = None, eta: float = 1.0,
-                 renoise: jax.Array | None = None) -> jax.Array:
+                 first_v: jax.Array | None = None, renoise: jax.Array | None = None) -> jax.Array:
     """Run the x0 + fresh-noise rule from ``z`` (pure noise at timesteps[0]) down to t = 0.
 
     Args:
@@ -100,9 +99,6 @@ def sample_frame(denoise_fn: DenoiseFn, z: jax.Array, key: jax.Array | None, tim
             analysis, which counts a loop body once, count every step).
         first_v: the velocity of the first step, ``denoise_fn(z, timesteps[0])``, when the caller has
             computed it already (in a pass fused with other work); the same result.
-        eta: the share of fresh noise in the re-noising: 1 (default) is the rule above; 0 re-noises with the
-            predicted noise ``eps_hat = z_t + (1 - sigma) v`` instead, i.e. the Euler step of the flow ODE
-            (deterministic given z); in between, ``eta * N(0, I) + sqrt(1 - eta^2) * eps_hat``.
         renoise: the re-noising draws themselves, (len(timesteps) - 1, *z.shape), step s using ``renoise[s]``,
             instead of drawing them from ``key`` (then ignored; may be None). Warped noise
             (``SamplerConfig.noise``, ``noise_warp``) passes them.
@@ -111,8 +107,6 @@ def sample_frame(denoise_fn: DenoiseFn, z: jax.Array, key: jax.Array | None, tim
         times (len(timesteps) - 2 with ``first_v``) inside one ``lax.scan`` (traced once).
     """
     t = _check_timesteps(timesteps)
-    if not 0.0 <= eta <= 1.0:
-        raise ValueError(f"eta must be in [0, 1], got {eta}")
     if renoise is None:
         keys = jax.random.split(key, t.shape[0] - 1)
         draw = lambda k: jax.random.normal(k, z.shape, jnp.float32)
@@ -124,7 +118,7 @@ def sample_frame(denoise_fn: DenoiseFn, z: jax.Array, key: jax.Array | None, tim
 
     def update(z_t, v, t_now, t_next, k):
         sigma, sigma_next = (sigma_of_timestep(s, num_train_timesteps) for s in (t_now, t_next))
-        z_next = sampler_step(z_t, v, sigma, sigma_next, draw(k), eta)
+        z_next = sampler_step(z_t, v, sigma, sigma_next, draw(k))
         return z_next.astype(z_t.dtype)
 
     def body(z_t, step):

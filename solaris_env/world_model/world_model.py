@@ -311,7 +311,7 @@ class Programs:
         warped = bool(self.noise_warp)
         return sampler.sample_frame(denoise, z, None if warped else renoise, self.timesteps,
                                     self.cfg.sampler.num_train_timesteps, unroll=self.unroll, first_v=first_v,
-                                    eta=self.cfg.sampler.renoise_eta, renoise=renoise if warped else None)
+                                    renoise=renoise if warped else None)
 
     def _sample(self, dit, parts, z, renoise, start, first_v=None):
         denoise = lambda x, t: self._velocity(dit, x, t, parts, start)

@@ -285,12 +285,15 @@ def test_sampler_overrides_in_a_model_spec():
     """``SPEC@name=value``: the same weights under another rollout setting, labelled so."""
     assert df.split_spec("default@noise_warp=0") == ("default", {"noise_warp": 0.0})
     assert df.split_spec("runs/a/model") == ("runs/a/model", {})
+    assert df.split_spec("default@bidirectional_steps=5") == ("default", {"bidirectional_steps": 5})  # int stays int
+    assert isinstance(df.split_spec("default@bidirectional_steps=5")[1]["bidirectional_steps"], int)
     assert df.model_label("default@noise_warp=0,action_guidance=1.5") == \
         "shipped default, sampler noise_warp 0, sampler action_guidance 1.5"
     model = df.load_model("preset:test@action_guidance=2")
     assert model.config.sampler.action_guidance == 2.0
     for bad, match in (("default@eta=1", "SamplerConfig fields"), ("default@noise_warp", "SamplerConfig fields"),
-                       ("default@noise_warp=x", "must be a number")):
+                       ("default@noise_warp=x", "must be a number"),
+                       ("default@bidirectional_steps=2.5", "must be an integer")):
         with pytest.raises(ValueError, match=match):
             df.split_spec(bad)
     with pytest.raises(ValueError, match="noise_warp"):  # the test preset has no camera warp to move noise by

@@ -68,10 +68,9 @@ def test_rules_compute_in_f32():
         assert out.dtype == jnp.float32
 
 
-@pytest.mark.parametrize("eta", [1.0, 0.6, 0.0])
-def test_sampler_step_to_sigma_zero_returns_the_x0_prediction(eta):
+def test_sampler_step_to_sigma_zero_returns_the_x0_prediction():
     x_t, v, fresh = _normals(6, 3)
-    np.testing.assert_array_equal(fm.sampler_step(x_t, v, 0.75, 0.0, fresh, eta), fm.x0_from_velocity(x_t, v, 0.75))
+    np.testing.assert_array_equal(fm.sampler_step(x_t, v, 0.75, 0.0, fresh), fm.x0_from_velocity(x_t, v, 0.75))
 
 
 def test_sampler_step_with_the_true_velocity_renoises_x0_with_the_fresh_noise():
@@ -81,31 +80,19 @@ def test_sampler_step_with_the_true_velocity_renoises_x0_with_the_fresh_noise():
     np.testing.assert_allclose(out, 0.5 * x0 + 0.5 * fresh, atol=1e-5)
 
 
-def _previous_sampler_update(z_t, v, sigma, sigma_next, fresh, eta):
-    """The sampler's update written out on its own (sigma given: x0 from the velocity, eta mixing the fresh and the
-    predicted noise, re-noised to sigma_next): what ``flow_matching.sampler_step`` must compute."""
-    z_t32, v32 = z_t.astype(jnp.float32), v.astype(jnp.float32)
-    x0 = z_t32 - sigma * v32
-    eps = fresh
-    if eta != 1.0:
-        eps_hat = z_t32 + (1.0 - sigma) * v32
-        eps = eta * eps + float(np.sqrt(1.0 - eta * eta)) * eps_hat
-    return (1.0 - sigma_next) * x0 + sigma_next * eps
+def _previous_sampler_update(z_t, v, sigma, sigma_next, fresh):
+    """The sampler's update written out on its own (sigma given: x0 from the velocity, re-noised to sigma_next
+    with the fresh noise): what ``flow_matching.sampler_step`` must compute."""
+    x0 = z_t.astype(jnp.float32) - sigma * v.astype(jnp.float32)
+    return (1.0 - sigma_next) * x0 + sigma_next * fresh
 
 
-@pytest.mark.parametrize("eta", [1.0, 0.6, 0.0])
-def test_sampler_step_equals_the_previous_sampler_formula(eta):
+def test_sampler_step_equals_the_previous_sampler_formula():
     x_t, v, fresh = _normals(8, 3)
     for t_now, t_next in [(1000.0, 750.0), (750.0, 500.0), (937.0, 869.0), (156.0, 0.0)]:
         sigma, sigma_next = fm.sigma_of_timestep(jnp.float32(t_now)), fm.sigma_of_timestep(jnp.float32(t_next))
-        want = _previous_sampler_update(x_t, v, sigma, sigma_next, fresh, eta)
-        got = fm.sampler_step(x_t, v, sigma, sigma_next, fresh, eta)
+        want = _previous_sampler_update(x_t, v, sigma, sigma_next, fresh)
+        got = fm.sampler_step(x_t, v, sigma, sigma_next, fresh)
         np.testing.assert_array_equal(got, want)
-        jitted = jax.jit(lambda *a: fm.sampler_step(*a, eta=eta))(x_t, v, sigma, sigma_next, fresh)
+        jitted = jax.jit(fm.sampler_step)(x_t, v, sigma, sigma_next, fresh)
         np.testing.assert_allclose(jitted, want, atol=1e-6, rtol=0)
-
-
-def test_sampler_step_eta_zero_is_the_euler_step_of_the_flow():
-    """eta = 0: x_next = x_t + (sigma_next - sigma) v, the Euler step of dx/dsigma = v."""
-    x_t, v, fresh = _normals(9, 3)
-    np.testing.assert_allclose(fm.sampler_step(x_t, v, 0.75, 0.5, fresh, eta=0.0), x_t - 0.25 * v, atol=1e-5)

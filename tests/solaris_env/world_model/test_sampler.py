@@ -154,41 +154,6 @@ def test_sampler_takes_a_denoiser_and_never_imports_the_network():
     assert not imported & {"dit", "WorldDiT"} and not any(m and m.endswith(".dit") for m in modules)
 
 
-def test_eta_zero_is_the_euler_solver_of_the_flow_and_ignores_the_key():
-    """renoise_eta = 0 re-noises with the predicted noise: exactly the Euler step z += (t_next - t) / T * v."""
-    z0 = jax.random.normal(jax.random.key(4), SHAPE)
-    denoise = lambda z, t: 0.5 * z + t / 1000.0
-    t = sampler.ar_schedule(SamplerConfig())
-    a = sampler.sample_frame(denoise, z0, jax.random.key(5), t, eta=0.0)
-    b = sampler.sample_frame(denoise, z0, jax.random.key(6), t, eta=0.0)
-    np.testing.assert_array_equal(a, b)
-    euler = z0
-    for t_now, t_next in zip(t[:-1], t[1:]):
-        euler = euler + (t_next - t_now) / 1000.0 * denoise(euler, t_now)
-    np.testing.assert_allclose(a, euler, atol=1e-5)
-
-
-def test_eta_mixes_fresh_and_predicted_noise():
-    """One re-noising (1000 -> 500 -> 0): z_1 = 0.5 x0 + 0.5 (eta * N + sqrt(1 - eta^2) * eps_hat)."""
-    z0 = jax.random.normal(jax.random.key(9), SHAPE)
-    denoise = lambda z, t: jnp.tanh(z) + t / 2000.0
-    key = jax.random.key(10)
-    for eta in (0.0, 0.6, 1.0):
-        calls = []
-        with jax.disable_jit():
-            sampler.sample_frame(lambda z, t: (calls.append(np.asarray(z)), denoise(z, t))[1], z0, key,
-                                 [1000.0, 500.0, 0.0], eta=eta)
-        v = denoise(z0, 1000.0)
-        x0, eps_hat = z0 - v, z0  # sigma = 1: x0 = z - v, eps_hat = z + (1 - sigma) v = z
-        fresh = jax.random.normal(jax.random.split(key, 2)[0], SHAPE)
-        expected = 0.5 * x0 + 0.5 * (eta * fresh + np.sqrt(1 - eta ** 2) * eps_hat)
-        np.testing.assert_allclose(calls[1], expected, atol=1e-5)
-    with pytest.raises(ValueError, match="eta must be in"):
-        sampler.sample_frame(denoise, z0, key, [1000.0, 0.0], eta=1.5)
-    with pytest.raises(ValueError, match="renoise_eta must be in"):
-        SamplerConfig(renoise_eta=-0.1)
-
-
 def test_given_renoise_draws_replace_the_keys_draws():
     """``renoise`` = the draws the key would give: the same x0; other draws: another x0; the key is ignored."""
     z = jax.random.normal(jax.random.key(0), SHAPE)
