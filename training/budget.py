@@ -10,8 +10,7 @@ steps or until its deadline, whichever comes first,
 where ``spent`` is the wall time ``all`` has already run in this run directory (across interruptions: the
 clock is persisted) and ``reserve`` the minutes kept for the stages after it (Self Forcing). A stage stopped
 by its deadline saves its checkpoint and its model as if it had reached its last step; the step it reached is
-recorded in ``OUT/all_clock.json``. (An LR cool-down, ``lr_decay_steps``, is scheduled on the configured steps:
-an early stop skips it; the tiny preset's stage 3 has none.)
+recorded in ``OUT/all_clock.json``.
 
 The clock counts the time ``all`` runs, not the time between runs: it is saved every ``SAVE_EVERY_S``
 seconds and at every stage's end, so an interruption loses at most that much from the account.

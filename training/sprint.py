@@ -201,21 +201,18 @@ class SprintConfig:
 
 def stage_blocks(cfg: SprintConfig, device: DeviceSettings) -> TrainingConfig:
     """The stage config of ``training.train``'s functions: the base blocks, the device's overrides, and the
-    sprint's own settings (open-ended steps, no checkpoints, samples, held-out loss or LR cool-down, rescanning
-    data; each where the stage's block has the key), every block validated again (``training.stage_config``)."""
+    sprint's own settings (open-ended steps, no checkpoints, samples or held-out loss, rescanning data;
+    each where the stage's block has the key), every block validated again (``training.stage_config``)."""
     base = load_stage_config(cfg.stage_config)
     if base.preset != cfg.preset:
         raise ValueError(f"stage config {cfg.stage_config!r} is for preset {base.preset!r}, the sprint's is "
                          f"{cfg.preset!r}")
     # no held-out loss either: the test split grows with the data, and may be empty when a stage starts
-    sprint = {"steps": OPEN_ENDED_STEPS, "ckpt_every": 0, "sample_every": 0, "lr_decay_steps": 0, "test_every": 0,
+    sprint = {"steps": OPEN_ENDED_STEPS, "ckpt_every": 0, "sample_every": 0, "test_every": 0,
               "rescan_s": cfg.rescan_s}
     blocks = dict(base.stages)
     for stage in STAGES:
         override = device.stages.get(stage, {})
-        if override.get("lr_decay_steps", 0):
-            raise ValueError(f"sprint stage override {stage}.lr_decay_steps must be 0 (stages are open-ended: no "
-                             f"cool-down can be scheduled), got {override['lr_decay_steps']}")
         block = {**dataclasses.asdict(base.stages[stage]), **override}
         block.update({k: v for k, v in sprint.items() if k in block})
         blocks[stage] = STAGE_CONFIGS[stage].from_dict(block, f"sprint stage override {stage}")

@@ -148,15 +148,14 @@ class VAEStageConfig(VAEDecoderStageConfig):
 @dataclass(frozen=True, kw_only=True)
 class FlowStageConfig(StageConfig):
     """``sp``, ``mp-bidirectional``, ``mp-causal``: flow matching of the DiT (``train.train_flow``).
-    ``lr_decay_steps``: a linear LR cool-down over the last N updates (``step.scheduled_lr``); ``ema_decay`` > 0:
-    the stage saves that exponential moving average of the DiT's parameters. Both off: the spec's recipe.
+    ``ema_decay`` > 0: the stage saves that exponential moving average of the DiT's parameters (0: the spec's
+    recipe).
     ``test_every`` > 0: every that many updates (and after the last) the loss of the parameters the stage would
     save, on ``test_batches`` fixed batches of the data's test split with fixed timesteps and noise, is logged as
     ``test_loss`` (the reference's cadence: 200 updates, 16 batches; docs/training.md)."""
 
     lr: float = _field(above=0)
     sample_every: int = _field(low=0)
-    lr_decay_steps: int = _field(0, low=0)
     ema_decay: float = _field(0.0, low=0, below=1)
     rescan_s: float | None = _field(None, low=0)
     test_every: int = _field(0, low=0)  # held-out loss this often (``step.make_test_loss``); 0: never

@@ -45,27 +45,10 @@ BATCH_KEYS = ("x0", "cond", "context", "mouse", "keyboard")
 # ---------------------------------------------------------------------------------------------
 
 
-def scheduled_lr(lr: float, step, total_steps: int | None = None, decay_steps: int = 0):
-    """Learning rate of update ``step`` (0-based): ``lr`` constant (docs/model.md §6.2), or, with ``decay_steps``
-    > 0, constant until the last ``decay_steps`` of ``total_steps`` and then linear towards 0
-    (warmup-stable-decay without warmup): update ``total_steps - 1`` uses ``lr / decay_steps``. Works on
-    Python ints (the logged value) and traced arrays (optax's update count)."""
-    if decay_steps == 0:
-        return lr
-    if total_steps is None or not 0 < decay_steps <= total_steps:
-        raise ValueError(f"decay_steps must be in [0, total_steps={total_steps}], got {decay_steps}")
-    frac = (total_steps - step) / decay_steps
-    return lr * (jnp.clip(frac, 0.0, 1.0) if isinstance(frac, jax.Array) else min(max(frac, 0.0), 1.0))
-
-
-def make_optimizer(lr: float, total_steps: int | None = None, decay_steps: int = 0) -> optax.GradientTransformation:
-    """AdamW of every stage (docs/model.md §6.2): b1 0.9, b2 0.95, eps 1e-8, no weight decay, no clipping; the
-    spec's constant LR unless ``decay_steps`` > 0 (``scheduled_lr``: a linear cool-down over the last
-    ``decay_steps`` of ``total_steps``, for the short CPU runs of the tiny preset)."""
-    schedule = (optax.constant_schedule(lr) if decay_steps == 0
-                else lambda count: scheduled_lr(lr, count, total_steps, decay_steps))
-    scheduled_lr(lr, 0, total_steps, decay_steps)  # validates the arguments now, not at the first update
-    return optax.adamw(schedule, b1=0.9, b2=0.95, eps=1e-8, weight_decay=0.0)
+def make_optimizer(lr: float) -> optax.GradientTransformation:
+    """AdamW of every stage (docs/model.md §6.2): b1 0.9, b2 0.95, eps 1e-8, no weight decay, no clipping, the
+    spec's constant LR."""
+    return optax.adamw(optax.constant_schedule(lr), b1=0.9, b2=0.95, eps=1e-8, weight_decay=0.0)
 
 
 @struct.dataclass

@@ -60,7 +60,6 @@ from training.step import (
     check_finite,
     make_optimizer,
     make_train_step,
-    scheduled_lr,
 )
 from training.surgery import relayout_decoder
 from training.vpt import VPTDataset
@@ -109,7 +108,6 @@ class LoopSpec:
     tokens_per_step: int  # for tokens/s (latent tokens of a batch seen by the DiT; pixels for the VAE)
     lr: float
     fsdp: bool = False  # shard parameters and optimiser state over the "data" mesh axis (else replicated)
-    lr_decay_steps: int = 0  # the optimiser's linear cool-down (``step.scheduled_lr``); only logged here
     deadline: float | None = None  # epoch seconds: the last step is the one after which the next would end past it
     test_every: int = 0  # ``on_test`` this often and after the last step; 0: never
 
@@ -164,8 +162,7 @@ def run_loop(spec: LoopSpec, out: Path, state: Any, step_fn: Callable, draw_batc
             now = time.perf_counter()
             steps_per_s = (done - n_last) / max(now - t_last, 1e-9)
             t_last, n_last = now, done
-            lr = scheduled_lr(spec.lr, step, spec.steps, spec.lr_decay_steps)
-            metrics_log.log(done, stage=spec.stage, lr=lr, steps_per_s=steps_per_s,
+            metrics_log.log(done, stage=spec.stage, lr=spec.lr, steps_per_s=steps_per_s,
                             tokens_per_s=steps_per_s * spec.tokens_per_step, **host)
             losses = {k: f"{v:.4f}" for k, v in host.items() if k.endswith("loss")}
             bar.set_postfix(**losses, steps_s=f"{steps_per_s:.2f}")
@@ -482,8 +479,8 @@ def train_flow(stage: str, out: str | Path, data_dir: str | Path, sc: FlowStageC
     base_cfg = checkpoint.read_config(model_dir(out, fs.init_from))
     players = 1 if fs.single_player else make_preset(base_cfg.name).num_players
     cfg, (dit, vae, encoder) = load_stage_model(out, fs.init_from, num_players=players)
-    decay_steps, ema_decay = sc.lr_decay_steps, sc.ema_decay
-    adamw = make_optimizer(sc.lr, steps, decay_steps)
+    ema_decay = sc.ema_decay
+    adamw = make_optimizer(sc.lr)
     if fs.single_player:
         params = nnx.state(dit, nnx.Param)
         dit.player_embed.embedding.set_value(jnp.zeros_like(dit.player_embed.embedding[...]))
@@ -519,7 +516,7 @@ def train_flow(stage: str, out: str | Path, data_dir: str | Path, sc: FlowStageC
     frames = cfg.vae.latent_frames(sc.num_frames)
     spec = LoopSpec(stage, steps, sc.log_every, sc.ckpt_every, sc.sample_every,
                     tokens_per_step=batch_size * cfg.num_players * frames * cfg.tokens_per_frame, lr=sc.lr,
-                    fsdp=fsdp, lr_decay_steps=decay_steps, deadline=deadline, test_every=sc.test_every)
+                    fsdp=fsdp, deadline=deadline, test_every=sc.test_every)
 
     def current(st) -> WorldModel:
         return WorldModel(cfg, nnx.merge(graphdef, st.final_params, st.rest), vae, encoder)

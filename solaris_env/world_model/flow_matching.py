@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 # t runs over 0..NUM_TRAIN_TIMESTEPS; SamplerConfig.num_train_timesteps is the same number (config.py stays jax-free).
 NUM_TRAIN_TIMESTEPS = 1000

@@ -89,7 +89,7 @@ def test_every_sprint_override_is_a_field_and_validates(preset):
             assert {k: block[k] for k in override} == override, (platform, stage)
         assert cfg.stages["mp-causal"].steps >= 10**9 and cfg.stages["mp-causal"].ckpt_every == 0
         assert cfg.stages["mp-causal"].rescan_s == sprint.rescan_s
-        assert not hasattr(cfg.stages["vae"], "lr_decay_steps")  # settings only where the stage has the key
+        assert not hasattr(cfg.stages["vae"], "test_every")  # settings only where the stage has the key
 
 
 def _tiny_with(stage: str, **changes) -> dict:
@@ -107,7 +107,7 @@ def _tiny_with(stage: str, **changes) -> dict:
     ("sp", {"lr": "fast"}, r"\[sp\]: lr must be a number > 0, got 'fast'"),
     ("vae", {"ckpt_every": -1}, r"\[vae\]: ckpt_every must be an int >= 0, got -1"),
     ("vae-decoder", {"rescan_s": "often"}, r"\[vae-decoder\]: rescan_s must be a number >= 0 or null, got 'often'"),
-    ("vae", {"lr_decay_steps": 2}, r"\[vae\]: unknown keys \['lr_decay_steps'\]"),
+    ("vae", {"test_every": 2}, r"\[vae\]: unknown keys \['test_every'\]"),
     ("self-forcing", {"generator": "fast"}, r"\[self-forcing\]: generator must be one of \('checkpointed', 'naive'\)"),
 ])
 def test_a_bad_key_or_value_names_the_stage_the_field_and_what_it_takes(stage, changes, message):
@@ -193,16 +193,19 @@ def test_sprint_override_errors_name_the_override():
     device = dataclasses.replace(sprint.device("cpu"), stages={"self-forcing": {"critic_lr": 0}})
     with pytest.raises(ValueError, match=r"sprint stage override self-forcing: critic_lr must be a number > 0"):
         stage_blocks(sprint, device)
+    device = dataclasses.replace(sprint.device("cpu"), stages={"mp-causal": {"batch": 4}})
+    with pytest.raises(ValueError, match=r"sprint stage override mp-causal: unknown keys \['batch'\]"):
+        stage_blocks(sprint, device)
 
 
 def test_defaults_are_the_ones_the_stages_used_before():
-    """Before the dataclasses: ``sc.get("lr_decay_steps", 0)``, ``sc.get("ema_decay", 0.0)``,
+    """Before the dataclasses: ``sc.get("ema_decay", 0.0)``,
     ``sc.get("rescan_s")``, ``sc.get("generator", "checkpointed")``; the CLI's ``get("seed", 0)``,
     ``get("collect")``, ``get("all", {})`` and, in the ``all`` block, ``get("time_budget_min")``,
     ``get("elastic_stage", "mp-causal")``, ``get("reserve_min", 0.0)``; ``collect_argv``'s optional
     ``instances`` and ``types`` (absent: the engine's defaults)."""
     flow = FlowStageConfig.from_dict({**LOOP, "lr": 1e-3, "sample_every": 1}, "flow")
-    assert (flow.lr_decay_steps, flow.ema_decay, flow.rescan_s) == (0, 0.0, None)
+    assert (flow.ema_decay, flow.rescan_s) == (0.0, None)
     decoder = {**LOOP, "lr": 1e-3, "sample_every": 1, "eval_clips": 2}
     assert VAEStageConfig.from_dict({**decoder, "stats_clips": 2}, "vae").rescan_s is None
     assert VAEDecoderStageConfig.from_dict(decoder, "vae-decoder").rescan_s is None

@@ -14,7 +14,7 @@ from solaris_env.world_model.world_model import WorldModel
 from training.objectives import NUM_TRAIN_TIMESTEPS, sample_timesteps
 from training.samplers import make_batch
 from training.step import (NonFiniteError, TrainState, check_finite, ema_decay_at, ema_update, make_loss_fn,
-                           make_optimizer, make_test_loss, make_train_step, prepare_batch, scheduled_lr)
+                           make_optimizer, make_test_loss, make_train_step, prepare_batch)
 
 B, T = 2, 5
 LR = 3e-3
@@ -161,33 +161,8 @@ def test_nan_raises_naming_the_step(modules, batch, steps):
 
 
 # ---------------------------------------------------------------------------------------------
-# Learning-rate cool-down and the parameter EMA (the tiny preset's short runs)
+# The parameter EMA (the tiny preset's short runs)
 # ---------------------------------------------------------------------------------------------
-
-
-def test_scheduled_lr_is_constant_then_linear_to_zero():
-    assert [scheduled_lr(2.0, s) for s in (0, 10, 10**6)] == [2.0, 2.0, 2.0]  # the spec's constant LR
-    lrs = [scheduled_lr(2.0, s, total_steps=10, decay_steps=4) for s in range(10)]
-    assert lrs == pytest.approx([2.0] * 6 + [2.0, 1.5, 1.0, 0.5])
-    traced = jax.jit(lambda s: scheduled_lr(2.0, s, 10, 4))
-    assert [float(traced(jnp.int32(s))) for s in range(12)] == pytest.approx(lrs + [0.0, 0.0])
-    for bad in (-1, 11):
-        with pytest.raises(ValueError, match="decay_steps"):
-            scheduled_lr(1.0, 0, total_steps=10, decay_steps=bad)
-    with pytest.raises(ValueError, match="total_steps=None"):
-        make_optimizer(1.0, decay_steps=3)
-
-
-def test_optimizer_applies_the_cool_down():
-    """Adam's step for a constant gradient is the learning rate itself: the updates show the schedule."""
-    tx = make_optimizer(1.0, total_steps=4, decay_steps=4)
-    params = {"w": jnp.zeros(3)}
-    state = tx.init(params)
-    sizes = []
-    for _ in range(5):
-        updates, state = tx.update({"w": jnp.ones(3)}, state, params)
-        sizes.append(float(-updates["w"][0]))
-    assert sizes == pytest.approx([1.0, 0.75, 0.5, 0.25, 0.0], abs=1e-6)
 
 
 def test_ema_decay_warms_up_and_update_is_the_average():
