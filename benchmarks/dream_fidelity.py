@@ -804,8 +804,9 @@ SAMPLER_OVERRIDE = "@"  # "SPEC@noise_warp=0" / "SPEC@action_guidance=1.5": SPEC
 
 
 def split_spec(spec: str) -> tuple[str, dict[str, int | float]]:
-    """``"SPEC@name=value,name=value"`` -> (SPEC, {name: value}): ``SamplerConfig`` fields (numbers, of each field's type) to change
-    for the rollouts, the weights unchanged, so that a setting is measured with and without in one run."""
+    """``"SPEC@name=value,name=value"`` -> (SPEC, {name: value}): ``SamplerConfig`` fields (numbers, parsed as
+    each field's type) to change for the rollouts, the weights unchanged, so that a setting is measured with and
+    without in one run."""
     base, sep, rest = spec.partition(SAMPLER_OVERRIDE)
     if not sep:
         return spec, {}
