@@ -41,8 +41,9 @@ One command for a borrowed accelerator (docs/training.md, "GPU sprint"): whateve
 * **Exports.** ``OUT/model/``: ``checkpoint.save`` with ``shard_bytes`` (safetensors shards of at most
   ``export.shard_mib`` MiB, ``export.max_total_mib`` in all, float16 storage), ``config.json`` and
   ``lineage.json``, rewritten atomically every ``save_every_min`` minutes from the stage ``export_from`` on
-  (the live train state, through the stage functions' ``on_model``) and at the end (the last stage's
-  model), so a run killed at its limit leaves the last complete model. ``lineage.json``: the command, the
+  (the live train state, through the stage functions' ``on_model``; skipped when, timed as the previous
+  one, it would end past the stage's deadline) and at the end (the last stage's model), so a run killed at
+  its limit leaves the last complete model. ``lineage.json``: the command, the
   init model and its own lineage, the devices, per stage its share, wall time, steps and the data it saw,
   the git commit, start and end. ``solaris-train install OUT/model`` makes it the default;
   ``--init OUT/model`` continues it.
@@ -395,6 +396,7 @@ class Exporter:
         self.dest, self.cfg, self.lineage, self.t0 = Path(dest), cfg, lineage, t0
         self.every_s = cfg.save_every_min * 60
         self.last = time.time()
+        self.live_s = 0.0  # how long the last export from a live train state took (the model built and written)
 
     def due(self) -> bool:
         return time.time() - self.last >= self.every_s
@@ -413,6 +415,12 @@ class Exporter:
         self.last = time.time()
         print(f"sprint: exported {source}{'' if step is None else f' at step {step}'} to {self.dest} in "
               f"{self.last - t:.1f} s", flush=True)
+
+    def export_live(self, make_model, source: str, step: int) -> None:
+        """Export ``make_model()`` (the model of a live train state), timing the whole for ``live_s``."""
+        t = time.time()
+        self.export(make_model(), source, step)
+        self.live_s = time.time() - t
 
     def export_dir(self, model: Path, source: str, final: bool = False) -> None:
         from solaris_env.world_model.world_model import WorldModel
@@ -634,8 +642,9 @@ class Sprint:
         beat, first_step_at, last_step_at = [t_start], [], [t_start]
 
         def on_model(step: int, make_model) -> None:
-            if exportable and self.exporter.due():
-                self.exporter.export(make_model(), stage, step)
+            # a periodic export that would end past the stage's deadline is left to the final one, which follows
+            if exportable and self.exporter.due() and time.time() + self.exporter.live_s < deadline:
+                self.exporter.export_live(make_model, stage, step)
             progress(step)
 
         def progress(step: int) -> None:

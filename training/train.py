@@ -120,10 +120,10 @@ def run_loop(spec: LoopSpec, out: Path, state: Any, step_fn: Callable, draw_batc
 
     ``step_fn(state, batch) -> (state, metrics)`` donates ``state``; ``draw_batch()`` draws from ``sampler``
     (its ``state_dict`` is checkpointed with the train state). With ``spec.deadline`` (``training.budget``), a
-    step is the last one (logged, checkpointed, sampled) when it ends past the deadline or when the next step,
-    predicted to take as long as this one did (from the end of the previous step, its hooks included), would;
-    the first step, whose time is mostly the JIT compile, is judged by the first rule only. At least one step
-    runs. With a deadline every step is waited for before the clock is read (JAX dispatches asynchronously,
+    step is the last one (logged, checkpointed, sampled) when it ends past the deadline or when, after its hooks
+    (which may take long: a sprint's export, a held-out test), the next step would, predicted to take as long as
+    the slowest of the last three (each from the end of the previous step's hooks to its own end); the first
+    step, whose time is mostly the JIT compile, is judged by the first rule only. At least one step runs. With a deadline every step is waited for before the clock is read (JAX dispatches asynchronously,
     and the host may run steps ahead of the device), so the host no longer prepares the next batch while the
     device computes. ``ckpt_every`` / ``sample_every`` <= 0: no checkpoints / samples at all (``training.sprint``,
     which never resumes). ``on_step(state, step)`` runs after every step. ``on_test(state)`` (the held-out loss)
@@ -146,6 +146,39 @@ def run_loop(spec: LoopSpec, out: Path, state: Any, step_fn: Callable, draw_batc
     bar = metrics_log.progress(total=spec.steps, initial=start, desc=spec.stage)
     t_last, n_last = time.perf_counter(), start
     step_ended = None  # epoch seconds at which the previous step (and its hooks) ended
+    recent_s: list[float] = []  # the last few steps' durations (draw + compute), hooks excluded
+
+    def log(done: int, metrics) -> None:
+        nonlocal t_last, n_last
+        host = check_finite(metrics, done - 1)
+        now = time.perf_counter()
+        steps_per_s = (done - n_last) / max(now - t_last, 1e-9)
+        t_last, n_last = now, done
+        metrics_log.log(done, stage=spec.stage, lr=spec.lr, steps_per_s=steps_per_s,
+                        tokens_per_s=steps_per_s * spec.tokens_per_step, **host)
+        losses = {k: f"{v:.4f}" for k, v in host.items() if k.endswith("loss")}
+        bar.set_postfix(**losses, steps_s=f"{steps_per_s:.2f}")
+
+    def hooks(done: int, metrics, last: bool, ran: set) -> None:
+        """The step's periodic hooks (and, when ``last``, the final ones), each at most once per step."""
+        nonlocal t_last
+        due = {"log": done % spec.log_every == 0 or last,
+               "test": on_test is not None and spec.test_every > 0 and (done % spec.test_every == 0 or last),
+               "ckpt": spec.ckpt_every > 0 and (done % spec.ckpt_every == 0 or last),
+               "sample": on_sample is not None and spec.sample_every > 0 and (done % spec.sample_every == 0 or last)}
+        for name in [n for n, d in due.items() if d and n not in ran]:
+            ran.add(name)
+            if name == "log":
+                log(done, metrics)
+            elif name == "test":
+                t_test = time.perf_counter()
+                metrics_log.log(done, stage=spec.stage, test_loss=on_test(state))
+                t_last += time.perf_counter() - t_test  # the logged steps/s are the training's own
+            elif name == "ckpt":
+                ckpt.save(done, state, {"sampler": sampler.state_dict(), "stage": spec.stage})
+            else:
+                on_sample(state, done)
+
     for step in range(start, spec.steps):
         state, metrics = step_fn(state, shard_batch(draw_batch(), mesh))
         done = step + 1
@@ -153,31 +186,24 @@ def run_loop(spec: LoopSpec, out: Path, state: Any, step_fn: Callable, draw_batc
         if not last and spec.deadline is not None:
             jax.block_until_ready(metrics)  # dispatch is asynchronous: the clock must see the step done
             now = time.time()
-            next_ends = now if step_ended is None else now + (now - step_ended)
-            if next_ends >= spec.deadline:
-                logger.warning("%s: time budget reached, stopping at step %d of %d", spec.stage, done, spec.steps)
+            if step_ended is not None:
+                recent_s = [*recent_s[-2:], now - step_ended]
+            if now >= spec.deadline:  # the only rule for the first step, mostly the JIT compile
                 last = True
-        if done % spec.log_every == 0 or last:
-            host = check_finite(metrics, step)
-            now = time.perf_counter()
-            steps_per_s = (done - n_last) / max(now - t_last, 1e-9)
-            t_last, n_last = now, done
-            metrics_log.log(done, stage=spec.stage, lr=spec.lr, steps_per_s=steps_per_s,
-                            tokens_per_s=steps_per_s * spec.tokens_per_step, **host)
-            losses = {k: f"{v:.4f}" for k, v in host.items() if k.endswith("loss")}
-            bar.set_postfix(**losses, steps_s=f"{steps_per_s:.2f}")
+        ran: set = set()
+        hooks(done, metrics, last, ran)
         bar.update(1)
-        if on_test is not None and spec.test_every > 0 and (done % spec.test_every == 0 or last):
-            t_test = time.perf_counter()
-            metrics_log.log(done, stage=spec.stage, test_loss=on_test(state))
-            t_last += time.perf_counter() - t_test  # the logged steps/s are the training's own
-        if spec.ckpt_every > 0 and (done % spec.ckpt_every == 0 or last):
-            ckpt.save(done, state, {"sampler": sampler.state_dict(), "stage": spec.stage})
-        if on_sample is not None and spec.sample_every > 0 and (done % spec.sample_every == 0 or last):
-            on_sample(state, done)
         if on_step is not None:
             on_step(state, done)
+        # judged after the hooks, which may take long (an export, a held-out test): stop when the next step, predicted
+        # to take as long as the slowest of the last three, would end past the deadline (after the first step, when
+        # the hooks have taken it past the deadline)
+        if not last and spec.deadline is not None and time.time() + max(recent_s, default=0.0) >= spec.deadline:
+            last = True
+            hooks(done, metrics, last, ran)  # the final log, test, checkpoint and sample not run above
         if last:
+            if done != spec.steps:
+                logger.warning("%s: time budget reached, stopping at step %d of %d", spec.stage, done, spec.steps)
             break
         step_ended = time.time()
     bar.close()

@@ -79,3 +79,34 @@ def test_run_loop_stops_before_a_step_that_would_end_past_its_deadline(tmp_path)
 def test_run_loop_runs_one_step_when_its_deadline_has_passed(tmp_path):
     n, _, _ = _timed_loop(tmp_path / "late", 0.05, -1.0)
     assert n == 1
+
+
+def test_run_loop_counts_a_slow_hook_before_starting_another_step(tmp_path):
+    """Steps of 0.3 s, a 1 s hook after step 2 (a sprint's export) and a deadline 1.85 s away: the hook ends at
+    ~1.6 s, and a third step would end at ~1.9 s, so the loop stops after the hook (judged before the hook, the
+    third step looked safe and ended past the deadline)."""
+    import jax.numpy as jnp
+    import numpy as np
+
+    from training.train import LoopSpec, run_loop
+
+    ran = []
+
+    def step_fn(state, batch):
+        time.sleep(0.3)
+        ran.append(1)
+        return state, {"loss": jnp.float32(0.0)}
+
+    def on_step(state, step):
+        if step == 2:
+            time.sleep(1.0)
+
+    deadline = time.time() + 1.85
+    spec = LoopSpec("mp-causal", 100, log_every=5, ckpt_every=0, sample_every=0, tokens_per_step=1, lr=1e-3,
+                    deadline=deadline)
+    run_loop(spec, tmp_path, {"w": jnp.zeros(2)}, step_fn, lambda: {"x": np.zeros((1, 1))}, sampler=None,
+             resume=False, on_step=on_step)
+    returned = time.time()
+    logged = [json.loads(line)["step"] for line in (tmp_path / "mp-causal" / "metrics.jsonl").read_text().splitlines()]
+    assert len(ran) == 2 and returned <= deadline, (len(ran), returned - deadline)
+    assert logged == [2]  # the last step is logged though log_every is 5
