@@ -82,8 +82,8 @@ def test_run_loop_runs_one_step_when_its_deadline_has_passed(tmp_path):
 
 
 def test_run_loop_counts_a_slow_hook_before_starting_another_step(tmp_path):
-    """Steps of 0.3 s, a 1 s hook after step 2 (a sprint's export) and a deadline 1.85 s away: the hook ends at
-    ~1.6 s, and a third step would end at ~1.9 s, so the loop stops after the hook (judged before the hook, the
+    """Steps of 0.5 s, a 1.5 s hook after step 2 (a sprint's export) and a deadline 2.9 s away: the hook ends at
+    ~2.5 s, and a third step would end at ~3 s, so the loop stops after the hook (judged before the hook, the
     third step looked safe and ended past the deadline)."""
     import jax.numpy as jnp
     import numpy as np
@@ -93,15 +93,15 @@ def test_run_loop_counts_a_slow_hook_before_starting_another_step(tmp_path):
     ran = []
 
     def step_fn(state, batch):
-        time.sleep(0.3)
+        time.sleep(0.5)
         ran.append(1)
         return state, {"loss": jnp.float32(0.0)}
 
     def on_step(state, step):
         if step == 2:
-            time.sleep(1.0)
+            time.sleep(1.5)
 
-    deadline = time.time() + 1.85
+    deadline = time.time() + 2.9
     spec = LoopSpec("mp-causal", 100, log_every=5, ckpt_every=0, sample_every=0, tokens_per_step=1, lr=1e-3,
                     deadline=deadline)
     run_loop(spec, tmp_path, {"w": jnp.zeros(2)}, step_fn, lambda: {"x": np.zeros((1, 1))}, sampler=None,
