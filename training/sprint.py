@@ -20,8 +20,9 @@ One command for a borrowed accelerator (docs/training.md, "GPU sprint"): whateve
   (``training.train``'s functions, ``train.call_stage``) with the config's ``fractions``; from a
   model (``--init``, which has its VAE): the DiT stages with ``fractions_from_init``. A stage is
   open-ended and stops at its deadline (``LoopSpec.deadline``). When a stage is about to start, the time
-  left (the budget's end - now - ``reserve_s``, kept for the final export) is planned over it and the
-  stages after it (``plan_shares``): each costs its ``overhead_s`` (loading, JIT compiles, the latent
+  left (the budget's end - now - ``reserve_s``, kept for what follows the last stage's last step: its
+  teardown, which stops the background encoder and saves its model, and the final export) is planned over
+  it and the stages after it (``plan_shares``): each costs its ``overhead_s`` (loading, JIT compiles, the latent
   cache, the VAE's statistics, the save; per device kind) plus a share of the rest
   by fraction; while the overheads and ``min_train_s`` each do not fit, the stage with the smallest
   fraction is dropped. Once stages have run, the overheads are scaled by how those compared with theirs

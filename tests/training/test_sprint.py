@@ -150,7 +150,7 @@ def test_growing_stream_picks_up_the_episodes_written_meanwhile(tiny_duet, tmp_p
 @pytest.fixture(scope="module")
 def sprints(tiny_duet, test_model, tmp_path_factory):
     """Sprint A (1 min; on this CPU its cold JIT compile alone may take longer) from a random-init model, then
-    sprint B (0.5 min) from A's output; one data directory, seeded with the 3 + 1 recorded episodes so training
+    sprint B (0.75 min) from A's output; one data directory, seeded with the 3 + 1 recorded episodes so training
     starts at once, and one work directory (its JAX compilation cache and latent cache serve B and B's engine
     worker)."""
     root = tmp_path_factory.mktemp("sprint")
@@ -159,7 +159,7 @@ def sprints(tiny_duet, test_model, tmp_path_factory):
     # stored as the sprints store theirs: B's VAE is A's, bit for bit, so B finds A's latents cached
     checkpoint.save(root / "init", test_model.config, _params(test_model), storage_dtype="float16")
     common = ["sprint", "--preset", "test", "--data", str(data), "--work", str(root / "work")]
-    for name, init, minutes in (("a", root / "init", "1"), ("b", root / "a" / "model", "0.5")):
+    for name, init, minutes in (("a", root / "init", "1"), ("b", root / "a" / "model", "0.75")):
         assert cli.main([*common, "--init", str(init), "--out", str(root / name), "--budget-min", minutes]) == 0
     return root
 
@@ -195,7 +195,9 @@ def test_sprint_trains_while_the_engine_records_and_keeps_its_time(sprints):
         overran_on_first_step = stage["steps"] == 1 and stage["first_step_s"] >= stage["share_s"]
         assert lineage["training_wall_s"] <= lineage["budget_s"] or overran_on_first_step, json.dumps(lineage)
         assert lineage["exports"][-1]["final"] and not any(e["final"] for e in lineage["exports"][:-1])
-    assert len(a["exports"]) >= 2  # a periodic export (every 0.2 min) from the live train state, then the final
+    # a periodic export (every 0.2 min) from the live train state, then the final; A makes none when its first step
+    # ends past its deadline (the cold compile on a loaded host), B always has the time
+    assert len(b["exports"]) >= 2 and b["exports"][0]["step"] is not None, b["exports"]
     assert a["platform"] == "cpu" and a["generation"] == 1 and a["init"]["lineage"] is None
     (a_stage,), (b_stage,) = ([s["data"] for s in x["stages"] if s["status"] == "ran"] for x in (a, b))
     assert a_stage["episodes_at_start"] >= 3  # the seeded ones: training started without waiting
