@@ -127,9 +127,9 @@ def run_loop(spec: LoopSpec, out: Path, state: Any, step_fn: Callable, draw_batc
     the deadline. At least one step runs. With a deadline every step is waited for before the clock is read
     (JAX dispatches asynchronously, and the host may run steps ahead of the device), so the host no longer
     prepares the next batch while the device computes. ``ckpt_every`` / ``sample_every`` <= 0: no checkpoints /
-    samples at all (``training.sprint``, which never resumes). ``on_step(state, step)`` runs after every step. ``on_test(state)`` (the held-out loss)
-    runs every ``spec.test_every`` steps and after the last; its value is logged as ``test_loss``. Returns the
-    final state.
+    samples at all (``training.sprint``, which never resumes). ``on_step(state, step)`` runs after every step.
+    ``on_test(state)`` (the held-out loss) runs every ``spec.test_every`` steps and after the last; its value is
+    logged as ``test_loss``. Returns the final state.
     """
     from training.distributed import make_mesh, shard_batch, shard_train_state
 
