@@ -95,7 +95,7 @@ def yaw_shift(acting: np.ndarray) -> np.ndarray:
 
 
 def run(checkpoint: str | None, preset: str | None, episodes: int, steps: int, yaw_deg: float,
-        seed: int = 0, start_seed: int = 100000, action_guidance: float | None = None, world: str = "flat") -> dict:
+        seed: int = 0, start_seed: int = 100000, world: str = "flat") -> dict:
     from agents.common import make_start_states
     from solaris_env.dream_env import DreamParallelEnv, build_model
     from solaris_env.real_env import RealParallelEnv
@@ -103,9 +103,6 @@ def run(checkpoint: str | None, preset: str | None, episodes: int, steps: int, y
     if episodes < 1 or steps < 1:
         raise ValueError(f"episodes and steps must be >= 1, got {episodes}, {steps}")
     model = build_model(checkpoint, preset, num_players=2)
-    if action_guidance is not None:  # SamplerConfig.action_guidance
-        import dataclasses
-        model = model.with_sampler(dataclasses.replace(model.config.sampler, action_guidance=action_guidance))
     height, width, _ = model.frame_shape
     envs = {"real": RealParallelEnv(num_players=2, world=world, resolution=(height, width), max_steps=steps,
                                     ticks_per_step=model.frames_per_step),
@@ -129,7 +126,6 @@ def run(checkpoint: str | None, preset: str | None, episodes: int, steps: int, y
     result["setup"] = {"episodes": episodes, "steps": steps, "yaw_deg_per_step": yaw_deg,
                        "frames_per_step": model.frames_per_step, "frame_size": [height, width], "world": world,
                        "start_seed": start_seed, "seed": seed,
-                       "action_guidance": model.config.sampler.action_guidance,
                        "world_model": portable_path(checkpoint, parts=3) if checkpoint else (
                            f"preset {preset} (random init)" if preset else "shipped default")}
     return result
@@ -144,9 +140,6 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--yaw-deg", type=float, default=10.0, help="yaw turn per step of the yaw probe (degrees)")
     p.add_argument("--world", default="flat", choices=("flat", "mixed"),
                    help="engine world of the start states (mixed has more edges for the shift estimate)")
-    p.add_argument("--action-guidance", type=float, default=None,
-                   help="sample the dream with this action guidance (SamplerConfig.action_guidance; "
-                        "default: the model's)")
     p.add_argument("--out", default=str(RESULTS))
     args = p.parse_args(argv)
     from benchmarks.machine import machine_info, write_result
@@ -154,7 +147,7 @@ def main(argv: list[str] | None = None) -> dict:
     load = os.getloadavg()
     t0 = time.perf_counter()
     result = run(args.checkpoint, args.preset, args.episodes, args.steps, args.yaw_deg,
-                 action_guidance=args.action_guidance, world=args.world)
+                 world=args.world)
     result["wall_s"] = round(time.perf_counter() - t0, 1)
     result["machine"] = machine_info(load)
     for probe, row in result["probes"].items():

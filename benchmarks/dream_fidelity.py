@@ -800,7 +800,7 @@ class WarpFormula:
         return np.stack(frames)
 
 
-SAMPLER_OVERRIDE = "@"  # "SPEC@noise_warp=0" / "SPEC@action_guidance=1.5": SPEC under another rollout setting
+SAMPLER_OVERRIDE = "@"  # "SPEC@noise_warp=0" / "SPEC@noise_warp=0.5,shift=3": SPEC under another rollout setting
 
 
 def split_spec(spec: str) -> tuple[str, dict[str, int | float]]:

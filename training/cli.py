@@ -139,8 +139,7 @@ def cmd_sprint(args) -> int:
 
 def cmd_install(args) -> int:
     from training.surgery import install_default
-    dest = install_default(args.model, args.dest, tuple(args.files), action_guidance=args.action_guidance,
-                           noise_warp=args.noise_warp)
+    dest = install_default(args.model, args.dest, tuple(args.files), noise_warp=args.noise_warp)
     print(f"installed {args.model} as the default model at {dest}")
     return 0
 
@@ -232,8 +231,6 @@ def build_parser() -> argparse.ArgumentParser:
                                  "lineage.json)")
     i.add_argument("--dest", default=None, help="default: solaris_env/assets/default")
     i.add_argument("--files", nargs="*", default=[], help="copied alongside (training log, eval.json, contact sheet)")
-    i.add_argument("--action-guidance", type=float, default=None, metavar="G",
-                   help="the installed config's SamplerConfig.action_guidance (>= 0; 1 = off; default: the model's)")
     i.add_argument("--noise-warp", type=float, default=None, metavar="RHO",
                    help="the installed config's SamplerConfig.noise_warp (in [0, 1]; 0 = fresh noise for every frame; "
                         "default: the model's)")

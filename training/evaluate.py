@@ -114,22 +114,17 @@ def direction_by_rollout(truth_BTPHW3: np.ndarray, rollouts: dict[str, tuple[np.
 
 
 def evaluate(model_dir: str | Path, data_dir: str | Path, out_dir: str | Path, num_segments: int = 8,
-             steps: int = 32, long_steps: int = 200, sheet_steps: int = 64, seed: int = 0,
-             action_guidance: float | None = None) -> dict:
-    import dataclasses
-
+             steps: int = 32, long_steps: int = 200, sheet_steps: int = 64, seed: int = 0) -> dict:
     from solaris_env.world_model.world_model import WorldModel
 
     model = WorldModel.load(model_dir)
-    if action_guidance is not None:  # evaluate under another action guidance (SamplerConfig.action_guidance)
-        model = model.with_sampler(dataclasses.replace(model.config.sampler, action_guidance=action_guidance))
     cfg = model.config
     k = model.frames_per_step
     out_dir = Path(out_dir)
     dataset = DuetDataset(data_dir, "test", obs_size=(cfg.frame_height, cfg.frame_width))
     result: dict = {"model": portable_path(model_dir, parts=3), "data": portable_path(data_dir),  # never absolute
                     "episodes": len(dataset.valid_ids),
-                    "frames_per_step": k, "action_guidance": cfg.sampler.action_guidance}
+                    "frames_per_step": k}
 
     # (a) + (b): short rollouts
     seg = _segments(dataset, 1 + k * steps, num_segments, seed)
@@ -211,11 +206,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--steps", type=int, default=32)
     parser.add_argument("--long-steps", type=int, default=200)
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--action-guidance", type=float, default=None,
-                        help="sample with this action guidance (SamplerConfig.action_guidance; default: the model's)")
     args = parser.parse_args(argv)
-    result = evaluate(args.model, args.data, args.out, args.segments, args.steps, args.long_steps, seed=args.seed,
-                      action_guidance=args.action_guidance)
+    result = evaluate(args.model, args.data, args.out, args.segments, args.steps, args.long_steps, seed=args.seed)
     print(json.dumps({k: v for k, v in result.items() if k != "long_rollout"}, indent=1))
     return 0
 

@@ -180,16 +180,14 @@ def official_dit(model: str | Path, dest: str | Path, seed: int = 0) -> Path:
 
 
 def install_default(model: str | Path, dest: str | Path | None = None, extra_files: tuple = (),
-                    action_guidance: float | None = None, noise_warp: float | None = None) -> Path:
+                    noise_warp: float | None = None) -> Path:
     """Copy a stage's ``model/`` (weights, either layout, + config; a ``lineage.json`` beside them comes along)
     and ``extra_files`` (training log, eval summary) to the package's default-model directory, atomically
-    (the env loads it when no checkpoint is named). ``action_guidance`` (None keeps the model's) is written into
-    the installed config's sampler (``SamplerConfig.action_guidance``, a rollout setting: the weights are the
-    same), and so is ``noise_warp`` (``SamplerConfig.noise_warp``)."""
+    (the env loads it when no checkpoint is named). ``noise_warp`` (None keeps the model's) is written into the
+    installed config's sampler (``SamplerConfig.noise_warp``, a rollout setting: the weights are the same)."""
     model, dest = Path(model), Path(dest) if dest else DEFAULT_MODEL_DIR
     loaded = WorldModel.load(model)  # refuse to install anything that does not load
-    sampler = {name: float(v) for name, v in (("action_guidance", action_guidance), ("noise_warp", noise_warp))
-               if v is not None}
+    sampler = {} if noise_warp is None else {"noise_warp": float(noise_warp)}
     if sampler:  # SamplerConfig and WorldModelConfig validate the values (a clear error naming the field)
         loaded = loaded.with_sampler(dataclasses.replace(loaded.config.sampler, **sampler))
     if (model / "lineage.json").is_file():

@@ -92,7 +92,7 @@ def _from_value(tp, value, where: str):
 
 # Fields deleted from the config (options that measured no gain), with the one value that the code now always
 # uses: a checkpoint written before the deletion loads when it has that value, and fails naming the field otherwise.
-RETIRED_FIELDS = {"SamplerConfig": {"renoise_eta": 1.0}}
+RETIRED_FIELDS = {"SamplerConfig": {"renoise_eta": 1.0, "action_guidance": 1.0}}
 
 
 def config_from_dict(data: dict, cls=WorldModelConfig, where: str = "config"):

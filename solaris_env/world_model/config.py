@@ -296,11 +296,6 @@ class SamplerConfig:
     num_train_timesteps: int = 1000  # = flow_matching.NUM_TRAIN_TIMESTEPS (a literal: this module stays jax-free)
     bidirectional_steps: int = 10
     shift: float = 5.0  # sigma' = shift*sigma / (1 + (shift-1)*sigma) for the N-step schedule
-    # Action guidance (ours; 1 = off, the reference): every denoising pass of an AR step also runs with this
-    # step's actions replaced by the no-op (all zeros) and the velocity is v_noop + g (v - v_noop), classifier-free
-    # guidance with "do nothing" as the null action. A no-op step is unchanged; g > 1 costs one more DiT pass per
-    # sampler step. A rollout setting.
-    action_guidance: float = 1.0
     # Warped sampling noise (ours; ``noise_warp``, docs/model.md §5.3): the share rho of each latent frame's sampler
     # noises that is the previous frame's, moved by whole latent pixels with the camera turn (fresh in the border
     # a turn uncovers): noise = rho * moved + sqrt(1 - rho^2) * fresh. 0 = fresh noise for every frame (the
@@ -309,8 +304,6 @@ class SamplerConfig:
 
     def __post_init__(self):
         _require(0.0 <= self.noise_warp <= 1.0, f"noise_warp must be in [0, 1], got {self.noise_warp}")
-        _require(math.isfinite(self.action_guidance) and self.action_guidance >= 0,
-                 f"action_guidance must be a finite number >= 0, got {self.action_guidance}")
 
 
 # ---------------------------------------------------------------------------------------------

@@ -306,16 +306,13 @@ class Programs:
         carried = self._warped_noises(ws, actions_PkA, frame_key)
         return (*self._split_noises(carried[0]), carried)
 
-    def _sample_x0(self, denoise, z, renoise, first_v=None):
+    def _sample(self, dit, parts, z, renoise, start, first_v=None):
         """The sampler over ``self.timesteps``; ``renoise`` as ``_step_noise`` returns it."""
+        denoise = lambda x, t: self._velocity(dit, x, t, parts, start)
         warped = bool(self.noise_warp)
         return sampler.sample_frame(denoise, z, None if warped else renoise, self.timesteps,
                                     self.cfg.sampler.num_train_timesteps, unroll=self.unroll, first_v=first_v,
                                     renoise=renoise if warped else None)
-
-    def _sample(self, dit, parts, z, renoise, start, first_v=None):
-        denoise = lambda x, t: self._velocity(dit, x, t, parts, start)
-        return self._sample_x0(denoise, z, renoise, first_v=first_v)
 
     def _first_pass(self, dit, ws: WorldState, actions_PkA, z):
         """The fused pass of a step: commit latent frame i - 1 (``ws.latent_BP1hwC`` at t = 0) and the
@@ -339,16 +336,7 @@ class Programs:
         z, k_renoise, _ = noise
         v, cache = self._first_pass(dit, ws, actions_PkA, z)
         parts = (self._cond_at(ws, ws.frame_index_B), ws.context_kv, self._window(ws, actions_PkA), cache)
-        g = self.cfg.sampler.action_guidance
-        if g == 1.0:  # a Python float: the reference sampler, traced as before
-            return self._sample(dit, parts, z, k_renoise, ws.frame_index_B, first_v=v), cache
-        # SamplerConfig.action_guidance: the same passes with this step's k actions set to the no-op
-        noop = (*parts[:2], self._window(ws, jnp.zeros_like(actions_PkA)), cache)
-        i = ws.frame_index_B
-        guided = lambda v_act, v_noop: v_noop + g * (v_act - v_noop)
-        first_v = guided(v, self._velocity(dit, z, self.timesteps[0], noop, i))
-        denoise = lambda x, t: guided(self._velocity(dit, x, t, parts, i), self._velocity(dit, x, t, noop, i))
-        return self._sample_x0(denoise, z, k_renoise, first_v=first_v), cache
+        return self._sample(dit, parts, z, k_renoise, ws.frame_index_B, first_v=v), cache
 
     def _first_pass_world(self, params, ws: WorldState, actions_PkA):
         return self._first_pass(self._modules(params)[:2], ws, actions_PkA, self._step_noise(ws, actions_PkA)[0])
@@ -497,7 +485,7 @@ class WorldModel:
         return cls(config, *modules)
 
     def with_sampler(self, sampler: SamplerConfig) -> "WorldModel":
-        """The same weights (shared, not copied) under another sampler config: timesteps, action guidance."""
+        """The same weights (shared, not copied) under another sampler config: timesteps, warped noise."""
         new = object.__new__(type(self))
         config = dataclasses.replace(self._cfg, sampler=sampler)
         new._setup(config, Programs(config, self.programs.graphdefs), self._step_params)

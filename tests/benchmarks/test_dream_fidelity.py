@@ -287,10 +287,9 @@ def test_sampler_overrides_in_a_model_spec():
     assert df.split_spec("runs/a/model") == ("runs/a/model", {})
     assert df.split_spec("default@bidirectional_steps=5") == ("default", {"bidirectional_steps": 5})  # int stays int
     assert isinstance(df.split_spec("default@bidirectional_steps=5")[1]["bidirectional_steps"], int)
-    assert df.model_label("default@noise_warp=0,action_guidance=1.5") == \
-        "shipped default, sampler noise_warp 0, sampler action_guidance 1.5"
-    model = df.load_model("preset:test@action_guidance=2")
-    assert model.config.sampler.action_guidance == 2.0
+    assert df.model_label("default@noise_warp=0,shift=3") == "shipped default, sampler noise_warp 0, sampler shift 3"
+    model = df.load_model("preset:test@shift=3,bidirectional_steps=4")
+    assert (model.config.sampler.shift, model.config.sampler.bidirectional_steps) == (3.0, 4)
     for bad, match in (("default@eta=1", "SamplerConfig fields"), ("default@noise_warp", "SamplerConfig fields"),
                        ("default@noise_warp=x", "must be a number"),
                        ("default@bidirectional_steps=2.5", "must be an integer")):

@@ -233,22 +233,6 @@ def test_install_takes_a_sharded_sprint_model_with_its_lineage(test_model, tmp_p
         np.testing.assert_array_equal(a, b)
 
 
-def test_install_writes_the_action_guidance_into_the_shipped_sampler(test_model, tmp_path):
-    from solaris_env.world_model.world_model import WorldModel
-
-    src = checkpoint.save(tmp_path / "stage" / "model", test_model.config, _params(test_model),
-                          storage_dtype="float16")  # as installed: the weights compare exactly
-    assert cli.main(["install", str(src), "--dest", str(tmp_path / "g2"), "--action-guidance", "2"]) == 0
-    installed = WorldModel.load(tmp_path / "g2")
-    assert installed.config.sampler.action_guidance == 2.0
-    assert installed.config.replace(sampler=test_model.config.sampler) == test_model.config  # nothing else moved
-    for a, b in zip(_leaves(WorldModel.load(src)), _leaves(installed)):
-        np.testing.assert_array_equal(a, b)
-    with pytest.raises(SystemExit, match="action_guidance must be a finite number >= 0, got -1.0"):
-        cli.main(["install", str(src), "--dest", str(tmp_path / "bad"), "--action-guidance", "-1"])
-    assert not (tmp_path / "bad").exists()
-
-
 def test_install_writes_the_noise_warp_into_the_shipped_sampler(test_model, tmp_path):
     from solaris_env.world_model.world_model import WorldModel
 

@@ -71,12 +71,13 @@ def test_config_from_dict_names_unknown_fields():
         checkpoint.config_from_dict(data)
 
 
-def test_a_retired_field_loads_at_the_value_the_code_now_uses_and_fails_otherwise():
+@pytest.mark.parametrize("field, kept, other", [("renoise_eta", 1.0, 0.0), ("action_guidance", 1.0, 1.5)])
+def test_a_retired_field_loads_at_the_value_the_code_now_uses_and_fails_otherwise(field, kept, other):
     data = checkpoint.config_to_dict(CFG)
-    data["sampler"]["renoise_eta"] = 1.0  # written before the option was deleted, at the reference's value
+    data["sampler"][field] = kept  # written before the option was deleted, at the reference's value
     assert checkpoint.config_from_dict(data) == CFG
-    data["sampler"]["renoise_eta"] = 0.0
-    with pytest.raises(ValueError, match=r"config.sampler.renoise_eta = 0.0: this option was removed"):
+    data["sampler"][field] = other
+    with pytest.raises(ValueError, match=rf"config.sampler.{field} = {other}: this option was removed"):
         checkpoint.config_from_dict(data)
 
 

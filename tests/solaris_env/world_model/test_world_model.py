@@ -17,7 +17,7 @@ from solaris_env.world_model import kv_cache
 from solaris_env.world_model.action_module import action_windows, left_pad_actions
 from solaris_env.world_model.components import abstract_modules
 from solaris_env.world_model.conditioning import first_frame_cond
-from solaris_env.world_model.config import SamplerConfig, WorldModelConfig
+from solaris_env.world_model.config import WorldModelConfig
 from solaris_env.world_model.world_model import (Programs, WorldModel, WorldState, encoder_receptive_field,
                                                  frames_to_model, steady_cond_index)
 
@@ -380,39 +380,6 @@ def test_step_params_round_trip_to_the_stacked_layout(model):
         for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b)):
             np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
     assert len(model.step_params.dit_layers) == model.config.dit.num_layers
-
-
-# ---------------------------------------------------------------------------------------------
-# Action guidance through the streaming step
-# ---------------------------------------------------------------------------------------------
-
-
-def _guided(model, g: float):
-    return model.with_sampler(dataclasses.replace(model.config.sampler, action_guidance=g))
-
-
-def test_action_guidance_leaves_a_no_op_step_alone_and_moves_an_acting_one(model):
-    ff = first_frames(model, seed=31)
-    still = np.zeros((2, B, model.num_players, model.frames_per_step, model.action_dim), np.float32)
-    acting = random_actions(model, B, 2, seed=32)
-    rng = jax.random.key(33)
-
-    def latents(m, actions):
-        state = m.init(ff, rng)
-        for a in actions:
-            _, state = m.step(state, a)
-        return np.asarray(state.latent_BP1hwC)
-
-    guided = _guided(model, 3.0)
-    np.testing.assert_allclose(latents(guided, still), latents(model, still), atol=1e-5, rtol=0)
-    assert np.abs(latents(guided, acting) - latents(model, acting)).max() > 1e-3
-    np.testing.assert_array_equal(latents(_guided(model, 1.0), acting), latents(model, acting))
-
-
-@pytest.mark.parametrize("g", [-1.0, float("nan"), float("inf")])
-def test_action_guidance_must_be_finite_and_non_negative(g):
-    with pytest.raises(ValueError, match="action_guidance"):
-        SamplerConfig(action_guidance=g)
 
 
 def test_parameter_layouts_on_the_host_give_the_same_model_on_the_default_device(monkeypatch):
