@@ -146,8 +146,7 @@ def main(argv: list[str] | None = None) -> dict:
 
     load = os.getloadavg()
     t0 = time.perf_counter()
-    result = run(args.checkpoint, args.preset, args.episodes, args.steps, args.yaw_deg,
-                 world=args.world)
+    result = run(args.checkpoint, args.preset, args.episodes, args.steps, args.yaw_deg, world=args.world)
     result["wall_s"] = round(time.perf_counter() - t0, 1)
     result["machine"] = machine_info(load)
     for probe, row in result["probes"].items():

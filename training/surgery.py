@@ -187,9 +187,8 @@ def install_default(model: str | Path, dest: str | Path | None = None, extra_fil
     installed config's sampler (``SamplerConfig.noise_warp``, a rollout setting: the weights are the same)."""
     model, dest = Path(model), Path(dest) if dest else DEFAULT_MODEL_DIR
     loaded = WorldModel.load(model)  # refuse to install anything that does not load
-    sampler = {} if noise_warp is None else {"noise_warp": float(noise_warp)}
-    if sampler:  # SamplerConfig and WorldModelConfig validate the values (a clear error naming the field)
-        loaded = loaded.with_sampler(dataclasses.replace(loaded.config.sampler, **sampler))
+    if noise_warp is not None:  # SamplerConfig and WorldModelConfig validate it (a clear error naming the field)
+        loaded = loaded.with_sampler(dataclasses.replace(loaded.config.sampler, noise_warp=float(noise_warp)))
     if (model / "lineage.json").is_file():
         extra_files = (model / "lineage.json", *extra_files)
     dest.parent.mkdir(parents=True, exist_ok=True)
