@@ -80,6 +80,7 @@ class Job:
     chunk_ticks: int
     height: int
     width: int
+    time_of_day: str = "cycle"  # training episodes: ``EpisodeConfig.time_of_day``
 
     def key(self):
         from solaris_env.engine.recorder import EpisodeKey
@@ -115,7 +116,8 @@ def training_jobs(args) -> list[Job]:
             shared, _ = episode_seeds(EpisodeConfig(args.seed, instance, e, kind))
             etype = registry.sample_type(np.random.default_rng(shared), types)
         jobs.append(Job(str(args.out), args.seed, e, instance, kind, etype, None,
-                        split_of(args.seed, instance, e, args.test_fraction), args.chunk_ticks, *args.resolution))
+                        split_of(args.seed, instance, e, args.test_fraction), args.chunk_ticks, *args.resolution,
+                        args.time_of_day or "cycle"))
     return jobs
 
 
@@ -170,7 +172,8 @@ def collect_one(job: Job) -> dict:
     result = {"episode": job.episode, "instance": job.instance, "eval_type": job.eval_type, "ticks": 0,
               "aborted": False, "error": None}
     try:
-        output = run_episode(EpisodeConfig(job.seed, job.instance, job.episode, job.world_kind, job.episode_type))
+        output = run_episode(EpisodeConfig(job.seed, job.instance, job.episode, job.world_kind, job.episode_type,
+                                           time_of_day=job.time_of_day))
         renderer = get_renderer(job.height, job.width)
         frames_PTHW3, avatar_id_PTHW = render_episode(output.trace, renderer, job.chunk_ticks)
         gt = ground_truth(output.trace, avatar_id_PTHW, output.tick_events)
@@ -268,6 +271,9 @@ def auto_chunk_ticks(height: int, width: int, players: int = 2) -> int:
 
 
 def cmd_collect(args) -> int:
+    if args.time_of_day == "cycle" and (args.eval or args.backend == "minecraft"):
+        raise SystemExit("collect: --time-of-day cycle is for the voxel backend's training data; eval episodes and "
+                         "the minecraft backend always start at noon (--time-of-day day)")
     if args.backend == "minecraft":
         return cmd_collect_minecraft(args)
     from solaris_env.engine.bots import registry
@@ -421,6 +427,9 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--instance-offset", type=non_negative_int, default=0, help="added to every instance id")
     c.add_argument("--test-fraction", type=float, default=0.01, help="training: deterministic fraction in duet/test")
     c.add_argument("--types", nargs="+", default=None, help="training: sample only these episode types (also the opt-in ones, e.g. lookAround)")
+    c.add_argument("--time-of-day", choices=("cycle", "day"), default=None,
+                   help="training: 'cycle' (default) starts each episode at a random time of day (the reference's "
+                        "natural cycle), 'day' at noon, as the eval episodes, the envs and the minecraft backend do")
     c.add_argument("--eval", action="store_true", help="collect the eval sets instead of training data")
     c.add_argument("--eval-types", nargs="+", default=None, help="eval: these types (default: all registered)")
     c.add_argument("--chunk-ticks", type=positive_int, default=None,

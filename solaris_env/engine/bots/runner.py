@@ -11,7 +11,7 @@ from __future__ import annotations
 import datetime as dt
 import math
 import zlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -35,6 +35,10 @@ GROUND_BLOCKS = frozenset(int(b) for b in (Block.GRASS, Block.DIRT, Block.STONE,
                                            Block.RED_SAND, Block.GRAVEL, Block.COBBLESTONE))
 
 
+TIMES_OF_DAY = ("cycle", "day")
+NOON_TICKS = 6000  # world age at noon: daylight 1.0 (``Game.daylight``)
+
+
 @dataclass(frozen=True)
 class EpisodeConfig:
     """Which episode to run. ``episode_type=None`` samples a training type with the shared RNG."""
@@ -46,12 +50,17 @@ class EpisodeConfig:
     episode_type: str | None = None
     num_players: int = 2
     world: WorldConfig = WorldConfig()
+    # training episodes: "cycle" starts at a random time of day (the reference's natural cycle), "day" at noon
+    # like the eval episodes and the envs (docs/engine.md, "Time of day"); eval episodes always start at noon
+    time_of_day: str = "cycle"
 
     def __post_init__(self):
         if not 2 <= self.num_players <= len(PLAYER_NAMES):
             raise ValueError(f"num_players must be in [2, {len(PLAYER_NAMES)}], got {self.num_players}")
         if self.world_kind not in ("flat", "normal"):
             raise ValueError(f"world_kind must be 'flat' or 'normal', got {self.world_kind!r}")
+        if self.time_of_day not in TIMES_OF_DAY:
+            raise ValueError(f"time_of_day must be one of {TIMES_OF_DAY}, got {self.time_of_day!r}")
 
 
 @dataclass
@@ -170,8 +179,9 @@ def setup_episode(cfg: EpisodeConfig, spec: EpisodeSpec, world_seed: int, shared
     spawn_rng = np.random.default_rng([world_seed, 1])
     pos = spawn_positions(world, spawn_rng, cfg.num_players, spec.spawn_min, spec.spawn_max, cfg.world)
     players = make_players(pos)
-    # Eval episodes are recorded by day (EVAL_TIME_SET_DAY); training sees the natural cycle.
-    age = 6000 if spec.is_eval else int(np.random.default_rng([world_seed, 2]).integers(0, 24000))
+    # Eval episodes are recorded by day (EVAL_TIME_SET_DAY); training sees the natural cycle unless asked for day.
+    cycle_age = int(np.random.default_rng([world_seed, 2]).integers(0, 24000))
+    age = NOON_TICKS if spec.is_eval or cfg.time_of_day == "day" else cycle_age
     game = Game(world, players, world_age=age)
     bots = [Bot(game, k, np.random.default_rng(shared), np.random.default_rng([shared, k + 1]))
             for k in range(cfg.num_players)]
@@ -189,7 +199,7 @@ def run_episode(cfg: EpisodeConfig) -> EpisodeOutput:
     etype = cfg.episode_type or registry.sample_type(np.random.default_rng(shared))
     spec = registry.get(etype)
     if spec.world is not None and spec.world != cfg.world_kind:
-        cfg = EpisodeConfig(cfg.seed, cfg.instance, cfg.episode, spec.world, etype, cfg.num_players, cfg.world)
+        cfg = replace(cfg, world_kind=spec.world, episode_type=etype)
     game, bots = setup_episode(cfg, spec, world_seed, shared)
     trace = Trace.start(game)
 

@@ -232,6 +232,13 @@ def test_collect_refuses_nonsense_counts_naming_the_argument(tmp_path, capsys, f
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.parametrize("extra", [["--eval"], ["--backend", "minecraft"]])
+def test_collect_refuses_the_day_cycle_where_every_episode_starts_at_noon(tmp_path, extra):
+    with pytest.raises(SystemExit, match="--time-of-day cycle is for the voxel backend's training data"):
+        cli.main(["collect", "--out", str(tmp_path / "out"), "--episodes", "1", "--time-of-day", "cycle", *extra])
+    assert not (tmp_path / "out").exists()
+
+
 def _interrupted(args, delay_s, cwd):
     """Run ``solaris-engine ARGS`` in a subprocess, send it SIGINT ``delay_s`` after the command started (its first
     line on stderr; before ``main`` runs, during the interpreter's start-up, Ctrl-C is Python's own): (status,

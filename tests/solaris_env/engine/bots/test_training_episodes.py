@@ -10,7 +10,7 @@ import pytest
 
 from solaris_env.engine.blocks import Block
 from solaris_env.engine.bots import registry
-from solaris_env.engine.bots.runner import PRE_ROLL_TICKS, EpisodeConfig, run_episode
+from solaris_env.engine.bots.runner import NOON_TICKS, PRE_ROLL_TICKS, EpisodeConfig, run_episode
 from solaris_env.engine.bots.training_episodes import building, mining
 
 WORLD_KINDS = ("flat", "normal")
@@ -236,3 +236,26 @@ def test_approach_comes_within_two_blocks_three_times_and_backs_off(world_kind):
     assert meetings >= 3 and far[-40:].any()
     assert registry.EPISODES["approach"].in_default_mix is False
 
+
+
+# ---------------------------------------------------------------------------------------------
+# Time of day (EpisodeConfig.time_of_day)
+# ---------------------------------------------------------------------------------------------
+
+
+def test_day_episodes_start_at_noon_and_play_the_same_as_the_cycle():
+    cycle = _run("buildStructure", "flat", 1)  # seed 1 draws a night-time start
+    day = run_episode(EpisodeConfig(seed=1, episode=1, world_kind="flat", episode_type="buildStructure",
+                                    time_of_day="day"))
+    age_cycle = [rec["worldAgeTicks"] for rec in cycle.trace.records[0]]
+    age_day = [rec["worldAgeTicks"] for rec in day.trace.records[0]]
+    assert age_day == list(range(NOON_TICKS, NOON_TICKS + len(age_day)))
+    strip = lambda out: [{k: v for k, v in rec.items() if k != "worldAgeTicks"} for recs in out.trace.records
+                         for rec in recs]
+    assert strip(day) == strip(cycle)  # only the clock differs: the same world, bots and actions
+    assert np.all(np.asarray(day.trace.daylight_T) == 1.0) and max(cycle.trace.daylight_T) < 0.5
+
+
+def test_time_of_day_names_its_values():
+    with pytest.raises(ValueError, match="time_of_day must be one of"):
+        EpisodeConfig(seed=0, time_of_day="night")
