@@ -31,4 +31,6 @@ def collect_argv(data: Path, cfg, collect_cfg: CollectConfig) -> list[str]:
         argv += ["--instances", str(c.instances)]
     if c.types is not None:
         argv += ["--types", *c.types]
+    if c.time_of_day is not None:
+        argv += ["--time-of-day", c.time_of_day]
     return argv

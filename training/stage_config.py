@@ -24,6 +24,7 @@ CONFIG_DIR = Path(__file__).parent / "configs"
 STAGES = ("vae", "vae-decoder", "sp", "mp-bidirectional", "mp-causal", "self-forcing")  # ``all``, in order
 ELASTIC_STAGES = ("sp", "mp-bidirectional", "mp-causal")  # may end early to keep ``all`` within its time budget
 COLLECT_WORLDS = ("flat", "normal", "mixed")  # ``solaris-engine collect --world``
+TIMES_OF_DAY = ("cycle", "day")  # ``solaris-engine collect --time-of-day`` (``engine.bots.runner.TIMES_OF_DAY``)
 
 
 def _field(default=dataclasses.MISSING, *, low=None, high=None, above=None, below=None, choices=None):
@@ -179,7 +180,9 @@ class CollectConfig(_Block):
     """The ``collect`` block: the training data as ``solaris-engine collect`` records it
     (``training.collect.collect_argv``; ``solaris-train all``, the sprint's background collect). ``instances``:
     episode e runs on instance e mod this (the flat surface is instance mod 5, so >= 10 covers all five with
-    ``world: mixed``); ``types``: only these episode types. None: the engine's default."""
+    ``world: mixed``); ``types``: only these episode types; ``time_of_day``: "day" records every episode at noon, as
+    the envs start, "cycle" at a random time of day (``solaris-engine collect --time-of-day``). None: the
+    engine's default."""
 
     episodes: int = _field(low=1)
     world: str = _field(choices=COLLECT_WORLDS)
@@ -187,6 +190,7 @@ class CollectConfig(_Block):
     test_fraction: float = _field(low=0, high=1)  # the episodes in duet/test (``recorder.split_of``)
     instances: int | None = _field(None, low=1)
     types: tuple[str, ...] | None = _field(None)
+    time_of_day: str | None = _field(None, choices=TIMES_OF_DAY)
 
 
 @dataclass(frozen=True, kw_only=True)

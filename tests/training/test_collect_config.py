@@ -31,10 +31,20 @@ def test_instances_and_types_are_passed_on():
     assert args.instances == 10 and args.types == ["lookAround"]
 
 
+def test_the_time_of_day_is_passed_on_and_names_its_values():
+    parse = lambda block: engine_cli.build_parser().parse_args(collect_argv(Path("d"), WorldModelConfig.tiny(), block))
+    assert parse(_block(time_of_day="day")).time_of_day == "day"
+    assert parse(_block()).time_of_day is None  # absent: the engine's default (the natural cycle)
+    from solaris_env.engine.bots.runner import TIMES_OF_DAY
+    from training.stage_config import TIMES_OF_DAY as CONFIG_TIMES
+    assert CONFIG_TIMES == TIMES_OF_DAY
+
+
 @pytest.mark.parametrize("changes, message", [
     ({"instance": 10}, "collect config: unknown keys \\['instance'\\]"),
     ({"world": "moon"}, "collect config: world must be one of \\('flat', 'normal', 'mixed'\\), got 'moon'"),
     ({"instances": 0}, "collect config: instances must be an int >= 1 or null, got 0"),
+    ({"time_of_day": "dusk"}, "collect config: time_of_day must be one of \\('cycle', 'day'\\)"),
 ])
 def test_a_bad_block_is_named(changes, message):
     with pytest.raises(ValueError, match=message):

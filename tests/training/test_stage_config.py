@@ -117,7 +117,8 @@ def test_a_bad_key_or_value_names_the_stage_the_field_and_what_it_takes(stage, c
 
 @pytest.mark.parametrize("block, value, message", [
     ("collect", {"instance": 10}, (r"tiny.json \[collect\]: unknown keys \['instance'\]; CollectConfig takes "
-                                   r"\['episodes', 'instances', 'seed', 'test_fraction', 'types', 'world'\]")),
+                                   r"\['episodes', 'instances', 'seed', 'test_fraction', 'time_of_day', 'types', "
+                                   r"'world'\]")),
     ("collect", {"episodes": "many"}, r"tiny.json \[collect\]: episodes must be an int >= 1, got 'many'"),
     ("collect", {"episodes": 0}, r"\[collect\]: episodes must be an int >= 1, got 0"),
     ("collect", {"world": "moon"}, r"\[collect\]: world must be one of \('flat', 'normal', 'mixed'\), got 'moon'"),
@@ -203,7 +204,7 @@ def test_defaults_are_the_ones_the_stages_used_before():
     ``sc.get("rescan_s")``, ``sc.get("generator", "checkpointed")``; the CLI's ``get("seed", 0)``,
     ``get("collect")``, ``get("all", {})`` and, in the ``all`` block, ``get("time_budget_min")``,
     ``get("elastic_stage", "mp-causal")``, ``get("reserve_min", 0.0)``; ``collect_argv``'s optional
-    ``instances`` and ``types`` (absent: the engine's defaults)."""
+    ``instances``, ``types`` and ``time_of_day`` (absent: the engine's defaults)."""
     flow = FlowStageConfig.from_dict({**LOOP, "lr": 1e-3, "sample_every": 1}, "flow")
     assert (flow.ema_decay, flow.rescan_s) == (0.0, None)
     decoder = {**LOOP, "lr": 1e-3, "sample_every": 1, "eval_clips": 2}
@@ -219,7 +220,7 @@ def test_defaults_are_the_ones_the_stages_used_before():
     assert AllConfig() == AllConfig.from_dict({}, "all")
     assert (cfg.all.time_budget_min, cfg.all.elastic_stage, cfg.all.reserve_min) == (None, "mp-causal", 0.0)
     collect = CollectConfig.from_dict({"episodes": 4, "world": "flat", "seed": 3, "test_fraction": 0.25}, "collect")
-    assert (collect.instances, collect.types) == (None, None)
+    assert (collect.instances, collect.types, collect.time_of_day) == (None, None, None)
     cfg = TrainingConfig.from_dict({**data, "all": {}}, "test")
     assert budget_settings(argparse.Namespace(time_budget_min=None), cfg.all) == (None, "mp-causal", 0.0)
 
