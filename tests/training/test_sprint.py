@@ -92,6 +92,7 @@ def test_config_errors_name_the_field():
     data = json.loads((cli.Path(__file__).resolve().parents[2] / "training/configs/sprint-tiny.json").read_text())
     cfg = SprintConfig.from_dict(data)
     assert stage_blocks(cfg, cfg.device("gpu")).stages["mp-causal"].steps >= 10**9
+    assert cfg.collect.time_of_day == "day"  # the envs' light (docs/training.md, "Data while training")
     with pytest.raises(ValueError, match="fractions_from_init must not name"):
         SprintConfig.from_dict({**data, "fractions_from_init": {"vae": 1.0}})
     with pytest.raises(ValueError, match=r"devices.gpu.reserve_s must be a number >= 0"):
