@@ -88,11 +88,16 @@ def test_plan_drops_the_smallest_shares_first_and_splits_the_rest_by_fraction():
     assert plan_shares([("a", 1.0)], overhead, 5.0, 14.0) == ({}, ["a"])
 
 
+def test_the_sprint_records_its_data_at_noon():
+    """Every env, start scene and eval set is at noon; the sprint's collect matches (docs/training.md)."""
+    data = json.loads((cli.Path(__file__).resolve().parents[2] / "training/configs/sprint-tiny.json").read_text())
+    assert SprintConfig.from_dict(data).collect.time_of_day == "day"
+
+
 def test_config_errors_name_the_field():
     data = json.loads((cli.Path(__file__).resolve().parents[2] / "training/configs/sprint-tiny.json").read_text())
     cfg = SprintConfig.from_dict(data)
     assert stage_blocks(cfg, cfg.device("gpu")).stages["mp-causal"].steps >= 10**9
-    assert cfg.collect.time_of_day == "day"  # the envs' light (docs/training.md, "Data while training")
     with pytest.raises(ValueError, match="fractions_from_init must not name"):
         SprintConfig.from_dict({**data, "fractions_from_init": {"vae": 1.0}})
     with pytest.raises(ValueError, match=r"devices.gpu.reserve_s must be a number >= 0"):
