@@ -14,8 +14,9 @@ states (``agents.common.make_start_states``, seeds ``--start-seed`` + i) in
 Reported per policy: mean return with a 95 % bootstrap CI for dream, real and real_judge, and the gap
 dream - real. Across policies: Pearson and Spearman correlation and MMRV (``agents.stats``) of dream vs real;
 real_judge vs real isolates the judges' error, dream vs real_judge the world model's. Goal: Spearman >= 0.8.
-Writes ``--out`` (default ``benchmarks/results/policy_eval_<task>.json``) and a scatter plot next to it
-(``.png``), both atomically. Episodes run one after another (a 2-core CPU is busy with one model call).
+Writes ``--out`` (default ``benchmarks/results/policy_eval_<task>.json``), a scatter plot next to it
+(``.png``) and a contact sheet of the frames behind the numbers (``_frames.png``: per policy, its first episode's
+learner frames in the engine over the same episode in the dream), all atomically. Episodes run one after another (a 2-core CPU is busy with one model call).
 """
 
 from __future__ import annotations
@@ -136,16 +137,20 @@ def main(argv: list[str] | None = None) -> dict:
           f"{args.max_steps} steps of k={k} frames at {height}x{width}", flush=True)
 
     # ---- rollouts --------------------------------------------------------------------------
-    rows = []
+    rows, sheets = [], []
     for spec in specs:
         policy, partner = make_policy(spec), make_policy(args.partner)
         returns = {"dream": [], "real": [], "real_judge": []}
+        seen = {"real": [], "dream": []}  # the first episode's learner frames in both envs, for the contact sheet
         t0 = time.perf_counter()
         for e, start in enumerate(starts):
-            result = run_episode(real, policy, start, args.seed + e, partner, side_tasks=[real_judge])
+            result = run_episode(real, policy, start, args.seed + e, partner, side_tasks=[real_judge],
+                                 frames=seen["real"] if e == 0 else None)
             returns["real"].append(result.env_return)
             returns["real_judge"].append(result.side_returns[0])
-            returns["dream"].append(run_episode(dream, policy, start, args.seed + e, partner).env_return)
+            returns["dream"].append(run_episode(dream, policy, start, args.seed + e, partner,
+                                                frames=seen["dream"] if e == 0 else None).env_return)
+        sheets.append(seen)
         row = {"name": portable_text(spec, parts=3),  # ppo:PATH without the machine's directories
                **{kind: summarize(r, resamples=args.resamples) for kind, r in returns.items()}}
         row["gap"] = row["dream"]["mean"] - row["real"]["mean"]
@@ -177,15 +182,17 @@ def main(argv: list[str] | None = None) -> dict:
     results["goal"]["met"] = bool(np.isfinite(spearman_dr) and spearman_dr >= SPEARMAN_GOAL)
 
     # ---- outputs ---------------------------------------------------------------------------
-    from agents.plots import scatter_png
+    from agents.plots import frames_png, scatter_png
 
     out = write_json_atomic(args.out, results)
     plot = scatter_png(Path(args.out).with_suffix(".png"), [r["name"] for r in rows], [r["real"] for r in rows],
                        [r["dream"] for r in rows], f"{args.task}: dream vs real return, {args.episodes} episodes, "
                        f"Spearman {spearman_dr:.2f}")
+    sheet = frames_png(Path(args.out).with_name(Path(args.out).stem + "_frames.png"), [r["name"] for r in rows],
+                       [s["real"] for s in sheets], [s["dream"] for s in sheets])
     a = results["agreement"]["dream_vs_real"]
     print(f"dream vs real: Pearson {a['pearson']:.3f}  Spearman {a['spearman']:.3f}  MMRV {a['mmrv']:.3f}  "
-          f"mean gap {a['mean_gap']:+.2f}; wrote {out} and {plot}", flush=True)
+          f"mean gap {a['mean_gap']:+.2f}; wrote {out}, {plot} and {sheet}", flush=True)
     return results
 
 

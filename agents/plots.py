@@ -1,7 +1,9 @@
-"""A dream-vs-real scatter plot drawn with OpenCV (matplotlib is not a dependency), written atomically as PNG.
+"""Policy-evaluation pictures drawn with OpenCV (matplotlib is not a dependency), written atomically as PNG.
 
-One point per policy at (real mean return, dream mean return) with its 95 % bootstrap intervals as error
-bars, the y = x diagonal (a perfect dream), the policies numbered with a legend on the right.
+* :func:`scatter_png`: one point per policy at (real mean return, dream mean return) with its 95 % bootstrap
+  intervals as error bars, the y = x diagonal (a perfect dream), the policies numbered with a legend on the right.
+* :func:`frames_png`: what the numbers come from: per policy, the learner's frames of one episode in the
+  engine over the same episode in the dream, at evenly spaced steps.
 """
 
 from __future__ import annotations
@@ -66,6 +68,62 @@ def scatter_png(path: str | Path, names: Sequence[str], real: Sequence[dict], dr
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.stem}.tmp.png")
     if not cv2.imwrite(str(tmp), img):  # drawn in BGR, OpenCV's order
+        raise RuntimeError(f"OpenCV could not write {tmp}")
+    os.replace(tmp, path)
+    return path
+
+
+FRAME_SCALE = 2  # contact-sheet pixels per frame pixel
+LABEL_WIDTH = 170  # the left strip with the policy's name and env
+
+
+def frames_png(path: str | Path, names: Sequence[str], real: Sequence[Sequence[np.ndarray]],
+               dream: Sequence[Sequence[np.ndarray]], columns: int = 11) -> Path:
+    """A contact sheet: for each policy an engine row over a dream row, ``columns`` frames each, taken at evenly
+    spaced steps of that episode (the first and the last frame included; a shorter episode repeats none).
+
+    Args:
+        names: the policies' names, one per row pair.
+        real, dream: per policy the learner's (H, W, 3) uint8 RGB frames of one episode (reset frame first).
+        columns: frames per row (>= 2).
+    """
+    import cv2
+
+    if not (len(names) == len(real) == len(dream)) or not names:
+        raise ValueError(f"need one real and one dream episode per policy, got {len(names)} names, "
+                         f"{len(real)} real, {len(dream)} dream")
+    if not isinstance(columns, int) or columns < 2:
+        raise ValueError(f"columns must be an int >= 2, got {columns!r}")
+    shapes = {np.shape(f) for episode in (*real, *dream) for f in episode}
+    if any(len(e) == 0 for e in (*real, *dream)) or len(shapes) != 1 or len(next(iter(shapes))) != 3:
+        raise ValueError(f"every episode needs frames of one (H, W, 3) shape, got shapes {sorted(shapes)} and "
+                         f"lengths {[len(e) for e in (*real, *dream)]}")
+    h, w, _ = next(iter(shapes))
+
+    def row(episode: Sequence[np.ndarray]) -> np.ndarray:
+        picks = np.unique(np.linspace(0, len(episode) - 1, columns).round().astype(int))
+        strip = np.zeros((h, w * columns, 3), np.uint8)
+        for j, i in enumerate(picks):
+            strip[:, j * w:(j + 1) * w] = episode[i]
+        return strip
+
+    font, white = cv2.FONT_HERSHEY_SIMPLEX, (255, 255, 255)
+    rows = []
+    for name, r, d in zip(names, real, dream):
+        for kind, episode in (("engine", r), ("dream", d)):
+            big = cv2.resize(row(episode)[..., ::-1], None, fx=FRAME_SCALE, fy=FRAME_SCALE,
+                             interpolation=cv2.INTER_NEAREST)
+            label = np.zeros((big.shape[0], LABEL_WIDTH, 3), np.uint8)
+            text = name if len(name) <= 22 else name[:9] + "..." + name[-10:]
+            cv2.putText(label, text, (6, 20), font, 0.45, white, 1, cv2.LINE_AA)
+            cv2.putText(label, f"{kind}, {len(episode) - 1} steps", (6, 40), font, 0.42, white, 1, cv2.LINE_AA)
+            rows.append(np.concatenate([label, big], 1))
+        rows.append(np.full((4, rows[-1].shape[1], 3), 255, np.uint8))  # a white line between policies
+    img = np.concatenate(rows[:-1], 0)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.stem}.tmp.png")
+    if not cv2.imwrite(str(tmp), img):  # BGR, OpenCV's order
         raise RuntimeError(f"OpenCV could not write {tmp}")
     os.replace(tmp, path)
     return path

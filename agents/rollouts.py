@@ -39,7 +39,7 @@ def _truth(env: Any, infos: dict) -> list[dict] | None:
 
 
 def run_episode(env: Any, policy: Policy, start_state: Any, seed: int, partner: Policy | None = None,
-                side_tasks: Sequence[Any] = ()) -> EpisodeResult:
+                side_tasks: Sequence[Any] = (), frames: list | None = None) -> EpisodeResult:
     """Play one episode (until the learner terminates or is truncated) and sum the learner's rewards.
 
     Args:
@@ -49,6 +49,8 @@ def run_episode(env: Any, policy: Policy, start_state: Any, seed: int, partner: 
         seed: the reset seed (model noise in the dream) and the policies' seeds.
         partner: drives Bravo (default: stands still).
         side_tasks: extra Tasks scoring the learner in the same episode (their own state is reset here).
+        frames: when a list is given, the learner's observations are appended to it (the reset frame, then one
+            per step: (H, W, 3) uint8 copies), so the two envs' episodes can be looked at side by side.
     """
     if list(env.possible_agents) != [LEARNER, PARTNER]:
         raise ValueError(f"the env must have the agents {[LEARNER, PARTNER]}, got {env.possible_agents}")
@@ -59,6 +61,8 @@ def run_episode(env: Any, policy: Policy, start_state: Any, seed: int, partner: 
     obs, infos = env.reset(seed=seed, options={"engine_state": start_state})
     policy.reset(env, LEARNER, seed)
     partner.reset(env, PARTNER, seed + 1)
+    if frames is not None:
+        frames.append(np.array(obs[LEARNER], np.uint8))
     for task in side_tasks:
         task.reset(env.step_frames()[:, 0], truth=_truth(env, infos))
     env_return, side_returns, steps = 0.0, np.zeros(len(side_tasks)), 0
@@ -69,6 +73,8 @@ def run_episode(env: Any, policy: Policy, start_state: Any, seed: int, partner: 
         obs, rewards, _, _, infos = env.step(actions)
         env_return += rewards[LEARNER]
         steps += 1
+        if frames is not None and LEARNER in obs:
+            frames.append(np.array(obs[LEARNER], np.uint8))
         per_player = [actions.get(a, noop()) for a in env.possible_agents]  # the Task API's P actions
         for j, task in enumerate(side_tasks):
             side_returns[j] += task.step(env.step_frames(), per_player, truth=_truth(env, infos)).rewards_P[0]

@@ -109,6 +109,9 @@ def test_evaluate_end_to_end(real_run, tmp_path):
     assert results["policies"][0]["real"]["returns"] == saved["policies"][0]["real"]["returns"]
     plot = cv2.imread(str(out.with_suffix(".png")))
     assert plot is not None and plot.shape[2] == 3 and plot.std() > 0
+    # the contact sheet: per policy an engine row over a dream row of the first episode (32x32 frames, 2x)
+    sheet = cv2.imread(str(tmp_path / "policy_eval_frames.png"))
+    assert sheet is not None and sheet.shape[0] == 2 * (2 * 2 * 32) + 4 and sheet.std() > 0
 
 
 def test_transfer_end_to_end(real_run, tmp_path):

@@ -74,3 +74,28 @@ def test_judge_seeker_finds_the_partner_at_the_judges_resolution(real, start_sta
     assert len(usable) >= 2
     returns = [run_episode(env, make_policy("seeker:0"), s, seed=i).env_return for i, s in enumerate(usable[:2])]
     assert min(returns) >= 8, returns
+
+
+def test_frames_png_lays_engine_over_dream_rows(tmp_path):
+    """The policy-eval contact sheet: per policy an engine row over a dream row, evenly spaced frames, first and
+    last included; bad input names what is wrong."""
+    import cv2
+
+    from agents.plots import FRAME_SCALE, LABEL_WIDTH, frames_png
+
+    def episode(value_of_step, steps):
+        return [np.full((8, 8, 3), value_of_step(t), np.uint8) for t in range(steps + 1)]
+
+    real = [episode(lambda t: 10 * t, 20)]
+    dream = [episode(lambda t: 255 - 10 * t, 20)]
+    path = frames_png(tmp_path / "sheet.png", ["seeker:0"], real, dream, columns=3)
+    img = cv2.imread(str(path))
+    assert img.shape == (2 * 8 * FRAME_SCALE, LABEL_WIDTH + 3 * 8 * FRAME_SCALE, 3)
+    frames = img[:, LABEL_WIDTH:].reshape(2, 8 * FRAME_SCALE, 3, 8 * FRAME_SCALE, 3)[:, 0, :, 0, 0]
+    assert frames.tolist() == [[0, 100, 200], [255, 155, 55]]  # steps 0, 10, 20 of each row
+    with pytest.raises(ValueError, match="one real and one dream episode per policy"):
+        frames_png(tmp_path / "x.png", ["a", "b"], real, dream)
+    with pytest.raises(ValueError, match="columns must be an int >= 2"):
+        frames_png(tmp_path / "x.png", ["a"], real, dream, columns=1)
+    with pytest.raises(ValueError, match="one \\(H, W, 3\\) shape"):
+        frames_png(tmp_path / "x.png", ["a"], real, [[np.zeros((4, 4, 3), np.uint8)]])
