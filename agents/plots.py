@@ -73,12 +73,12 @@ def scatter_png(path: str | Path, names: Sequence[str], real: Sequence[dict], dr
     return path
 
 
-FRAME_SCALE = 2  # contact-sheet pixels per frame pixel
+FRAME_SCALE = 1  # contact-sheet pixels per frame pixel (the sheets stay ~1 MB: results live in every clone)
 LABEL_WIDTH = 170  # the left strip with the policy's name and env
 
 
 def frames_png(path: str | Path, names: Sequence[str], real: Sequence[Sequence[np.ndarray]],
-               dream: Sequence[Sequence[np.ndarray]], columns: int = 11) -> Path:
+               dream: Sequence[Sequence[np.ndarray]], columns: int = 6) -> Path:
     """A contact sheet: for each policy an engine row over a dream row, ``columns`` frames each, taken at evenly
     spaced steps of that episode (the first and the last frame included; a shorter episode repeats none).
 

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from agents import evaluate, ppo_dream, ppo_real, transfer
+from agents.plots import FRAME_SCALE
 from agents.common import parse_args
 from agents.policies import PPOPolicy, make_policy
 from agents.ppo_common import TASK_CAMERA_AXES, TASK_KEYS
@@ -109,9 +110,9 @@ def test_evaluate_end_to_end(real_run, tmp_path):
     assert results["policies"][0]["real"]["returns"] == saved["policies"][0]["real"]["returns"]
     plot = cv2.imread(str(out.with_suffix(".png")))
     assert plot is not None and plot.shape[2] == 3 and plot.std() > 0
-    # the contact sheet: per policy an engine row over a dream row of the first episode (32x32 frames, 2x)
+    # the contact sheet: per policy an engine row over a dream row of the first episode (32x32 frames, FRAME_SCALE)
     sheet = cv2.imread(str(tmp_path / "policy_eval_frames.png"))
-    assert sheet is not None and sheet.shape[0] == 2 * (2 * 2 * 32) + 4 and sheet.std() > 0
+    assert sheet is not None and sheet.shape[0] == 2 * (2 * FRAME_SCALE * 32) + 4 and sheet.std() > 0
 
 
 def test_transfer_end_to_end(real_run, tmp_path):
