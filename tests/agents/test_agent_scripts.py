@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from agents import evaluate, ppo_dream, ppo_real, transfer
-from agents.plots import FRAME_SCALE
 from agents.common import parse_args
+from agents.plots import FRAME_SCALE
 from agents.policies import PPOPolicy, make_policy
 from agents.ppo_common import TASK_CAMERA_AXES, TASK_KEYS
 from solaris_env.spaces import BINARY_KEYS, validate_action
