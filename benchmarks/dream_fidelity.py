@@ -15,6 +15,8 @@ the training mix, standing still). Metrics (pure numpy / OpenCV functions below,
 (``WINDOWS``) and per start-world surface (grass, snow, sand, red_sand, normal):
 
 * ``view_change_ratio``: mean |frame_t - frame_t-1| (grey levels) of the dream over the engine's.
+* ``within_step_change_ratio``: the same inside each env step (its k frames, 20 fps), dream over engine: a
+  dream that shows one picture per step and jumps between steps scores 0 here whatever its ``view_change_ratio``.
 * ``direction_agreement``: does the dream's view move the way the engine's does (``direction_score``):
   a global camera motion (turn, tilt, zoom) is fitted to every engine frame pair; each pair, engine or
   dream, is scored by how much better that motion explains its change than the reversed motion,
@@ -105,6 +107,12 @@ def view_change_T(frames_THW3: np.ndarray) -> np.ndarray:
     """(T - 1,) mean |grey_t - grey_t-1| of consecutive frames; entry t - 1 is the change into frame t."""
     g = grey_THW(frames_THW3)
     return np.abs(np.diff(g, axis=0)).mean(axis=(1, 2)) if len(g) > 1 else np.zeros(0, np.float32)
+
+
+def within_step_change(frames_kHW3: np.ndarray) -> float:
+    """Mean |grey_j - grey_j-1| over the consecutive frames of one env step (its k ticks); 0 for k = 1."""
+    change = view_change_T(frames_kHW3)
+    return float(change.mean()) if len(change) else 0.0
 
 
 def sharpness_T(frames_THW3: np.ndarray) -> np.ndarray:
@@ -707,6 +715,7 @@ class Rollout:
     pixels_T: np.ndarray  # (T + 1,) the partner's avatar pixels on the learner's screen
     u_T: list  # (T + 1,) their centroid's horizontal position, None when no pixel shows
     yaw_pitch_T2: np.ndarray  # (T + 1, 2) the learner's view direction, degrees (MineRL: + = right, + = down)
+    within_T: np.ndarray | None = None  # (T,) the engine's ``within_step_change`` of the learner per step
 
 
 def rollout_seed(program: str, state_index: int) -> int:
@@ -718,7 +727,8 @@ def engine_rollout(env, program: Program, start, state_index: int, surface: str,
     """Play ``program`` in the engine from ``start`` (closed loop where the program reads the engine), or the
     given per-step ``actions``; record everything the dream replay and the metrics need."""
     obs, infos = env.reset(seed=0, options={"engine_state": start})
-    frames, pixels, us, views, played = [obs[LEARNER]], [], [], [], []
+    frames, pixels, us, views, played, within = [obs[LEARNER]], [], [], [], [], []
+    learner = env.possible_agents.index(LEARNER)
     random_play = RandomPlay(rollout_seed(program.name, state_index)) if program.name == "random" else None
 
     def record(infos):
@@ -741,21 +751,25 @@ def engine_rollout(env, program: Program, start, state_index: int, surface: str,
         played.append(step)
         obs, _, _, _, infos = env.step(step)
         frames.append(obs[LEARNER])
+        within.append(within_step_change(env.step_frames()[learner]))
         record(infos)
     return Rollout(program.name, program.kind, state_index, start, surface, in_view,
                    rollout_seed(program.name, state_index), played, np.stack(frames), np.asarray(pixels),
-                   us, np.asarray(views, np.float64))
+                   us, np.asarray(views, np.float64), np.asarray(within, np.float32))
 
 
-def dream_rollout(env, rollout: Rollout, dream_seed: int = 0) -> np.ndarray:
-    """(T + 1, H, W, 3) uint8: the learner's dream observations from the same start with the same actions;
-    ``dream_seed`` moves the dream's sampling noise only (``--dream-seed``: the metrics' noise floor)."""
+def dream_rollout(env, rollout: Rollout, dream_seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """(frames (T + 1, H, W, 3) uint8, within (T,)): the learner's dream observations from the same start with the
+    same actions, and each step's ``within_step_change``; ``dream_seed`` moves the dream's sampling noise only
+    (``--dream-seed``: the metrics' noise floor)."""
     obs, _ = env.reset(seed=rollout.seed + dream_seed, options={"engine_state": rollout.start})
-    frames = [obs[LEARNER]]
+    learner = env.possible_agents.index(LEARNER)
+    frames, within = [obs[LEARNER]], []
     for step in rollout.actions:
         obs, *_ = env.step(step)
         frames.append(obs[LEARNER])
-    return np.stack(frames)
+        within.append(within_step_change(env.step_frames()[learner]))
+    return np.stack(frames), np.asarray(within, np.float32)
 
 
 # =============================================================================================
@@ -892,6 +906,8 @@ class Scored:
     pos_d: list
     feat_e: np.ndarray | None
     feat_d: np.ndarray | None
+    within_e: np.ndarray | None = None  # per-step ``within_step_change``; None where a row has one frame per step
+    within_d: np.ndarray | None = None
 
     @property
     def steps(self) -> np.ndarray:
@@ -922,7 +938,8 @@ class EngineCache:
         self.feat = features(f[1:]) if features is not None else None
 
 
-def score(rollout: Rollout, engine: EngineCache, dream_THW3: np.ndarray, judge, features) -> Scored:
+def score(rollout: Rollout, engine: EngineCache, dream_THW3: np.ndarray, judge, features,
+          within_d: np.ndarray | None = None) -> Scored:
     e, d = rollout.engine_THW3, dream_THW3
     dirs = direction_scores(e, d, motion_T3=engine.motion)
     pd = prepare_THW(d)
@@ -935,7 +952,7 @@ def score(rollout: Rollout, engine: EngineCache, dream_THW3: np.ndarray, judge, 
                   engine.pos_truth, engine.vis, engine.pos,
                   judge.answer("visible", d[1:]) if judge is not None else [None] * n,
                   judge.answer("position", d[1:]) if judge is not None else [None] * n,
-                  engine.feat, features(d[1:]) if features is not None else None)
+                  engine.feat, features(d[1:]) if features is not None else None, rollout.within_T, within_d)
 
 
 def _r(x, nd: int = 3):
@@ -962,6 +979,7 @@ def summarize(parts: Sequence[tuple[Scored, np.ndarray]]) -> dict:
         "steps": steps,
         "view_change_ratio": _r(ratio(cd.sum(), ce.sum())),
         "view_change_engine": _r(ce.mean(), 2), "view_change_dream": _r(cd.mean(), 2),
+        "within_step_change_ratio": None,
         "direction_agreement": _r(direction_agreement(de, dd, valid)),
         "direction_valid_steps": int(valid.sum()),
         "direction_score_engine": _r(de[valid].mean()) if valid.any() else None,
@@ -974,6 +992,10 @@ def summarize(parts: Sequence[tuple[Scored, np.ndarray]]) -> dict:
         "sharpness_engine": _r(se.mean(), 2), "sharpness_dream": _r(sd.mean(), 2),
         "psnr_db": _r(psnr.mean(), 2),
     }
+    if all(s.within_e is not None and s.within_d is not None for s, _ in parts):
+        we, wd = cat(lambda s: s.within_e), cat(lambda s: s.within_d)
+        out["within_step_change_ratio"] = _r(ratio(wd.sum(), we.sum()))
+        out["within_step_change_engine"], out["within_step_change_dream"] = _r(we.mean(), 2), _r(wd.mean(), 2)
     if valid.any():
         out["motion_engine"] = {k: _r(v, 3) for k, v in zip(("yaw_deg", "pitch_deg", "log_zoom"), me[valid].mean(0))}
         out["motion_dream"] = {k: _r(v, 3) for k, v in zip(("yaw_deg", "pitch_deg", "log_zoom"),
@@ -1248,15 +1270,16 @@ def run(model_specs: Sequence[str], program_names: Sequence[str], setup: Setup, 
     for label, model in models.items():
         t0 = time.perf_counter()
         denv = None if isinstance(model, WarpFormula) else DreamParallelEnv(model=model, max_steps=10**6)
-        dreams = []
+        dreams, withins = [], []
         for r in rollouts:
-            frames = model.rollout(r) if denv is None else dream_rollout(denv, r, setup.dream_seed)
+            frames, within = (model.rollout(r), None) if denv is None else dream_rollout(denv, r, setup.dream_seed)
             dreams.append(frames)
+            withins.append(within)
             if id(r) in shown:
                 shown[id(r)][label] = frames
         dream_s = time.perf_counter() - t0
         t0 = time.perf_counter()
-        scored = [score(r, caches[id(r)], d, judge, features) for r, d in zip(rollouts, dreams)]
+        scored = [score(r, caches[id(r)], d, judge, features, w) for r, d, w in zip(rollouts, dreams, withins)]
         results[label] = tables(scored, programs)
         timing[f"dream_rollouts_s[{label}]"] = round(dream_s, 1)
         timing[f"dream_scoring_s[{label}]"] = round(time.perf_counter() - t0, 1)
@@ -1282,6 +1305,8 @@ def run(model_specs: Sequence[str], program_names: Sequence[str], setup: Setup, 
                       "distance: visible/position/structure penultimate activations (192-d)" if with_judges else None,
             "metrics": {
                 "view_change_ratio": "sum over steps of the dream's mean |grey_t - grey_t-1| / the engine's",
+                "within_step_change_ratio": "the same over the consecutive frames inside each env step (its k "
+                                            "ticks), dream / engine; None for a row with one frame per step",
                 "direction_agreement": "mean direction score of the dream / of the engine over the steps whose "
                                        f"engine motion shows (score >= {VALID_SCORE}); 1 = as the engine, 0 = frozen "
                                        "or unrelated, < 0 = reversed",
@@ -1337,11 +1362,12 @@ def print_tables(result: dict) -> None:
                   f"{_fmt(a['psnr_db'], 1)} {_fmt(a.get('visible_agreement_dream'))} "
                   f"{_fmt(a.get('visible_agreement_engine'))} {_fmt(a.get('position_agreement_dream'))} "
                   f"{_fmt(a.get('position_agreement_engine'))} {_fmt(a.get('frechet'), 1)}")
-        print(f"{'surface':16s} {'vc':>6s} {'dir':>6s} frozen  drift  sharp   PSNR  vis_d  vis_e  pos_d  pos_e     FD  "
-              "steps")
+        print(f"{'surface':16s} {'vc':>6s} {'within':>6s} {'dir':>6s} frozen  drift  sharp   PSNR  vis_d  vis_e  pos_d  "
+              "pos_e     FD  steps")
         rows = list(res["surfaces"].items()) + list(res["partner_at_start"].items()) + [("overall", res["overall"])]
         for surf, a in rows:
-            print(f"{surf:16s} {_fmt(a['view_change_ratio'])} {_fmt(a['direction_agreement'])} "
+            print(f"{surf:16s} {_fmt(a['view_change_ratio'])} {_fmt(a.get('within_step_change_ratio'))} "
+                  f"{_fmt(a['direction_agreement'])} "
                   f"{_fmt(a['frozen_fraction'])} {_fmt(a['drift_fraction'])} {_fmt(a['sharpness_ratio'])} "
                   f"{_fmt(a['psnr_db'], 1)} "
                   f"{_fmt(a.get('visible_agreement_dream'))} {_fmt(a.get('visible_agreement_engine'))} "

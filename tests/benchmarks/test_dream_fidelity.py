@@ -56,6 +56,34 @@ def test_frozen_dream_has_view_change_ratio_zero_and_frozen_fraction_one():
     assert df.ratio(1.0, 0.0) is None  # nothing to compare with
 
 
+def _scored(within_e, within_d, change=4.0):
+    """A Scored of len(within_e) steps whose only informative values are the view changes."""
+    n = len(within_e)
+    rollout = df.Rollout("forward", "learner", 0, None, "grass", True, 0, [], np.zeros((n + 1, 2, 2, 3), np.uint8),
+                         np.zeros(n + 1), [None] * (n + 1), np.zeros((n + 1, 2)), np.asarray(within_e, np.float32))
+    z, c = np.zeros(n), np.full(n, change)
+    return df.Scored(rollout, c, c, z + 1, z + 1, z, z, z, np.zeros(n, bool), np.zeros((n, 3)), np.zeros((n, 3)),
+                     [None] * n, [None] * n, [None] * n, [None] * n, [None] * n, [None] * n, None, None,
+                     rollout.within_T, None if within_d is None else np.asarray(within_d, np.float32))
+
+
+def test_within_step_change_sees_a_dream_that_jumps_once_per_step():
+    """Inside a step: the engine against itself gives ratio 1; a dream that holds one picture for the step's k
+    frames (and jumps between steps, so its per-step view change is the engine's) gives 0; a row with one frame
+    per step (the formula) gives None."""
+    step = _moving_THW3((2.0, 0.0, 0.0))[:4]  # one env step of k = 4 moving frames
+    held = np.repeat(step[:1], 4, axis=0)
+    assert df.within_step_change(step) == pytest.approx(float(df.view_change_T(step).mean())) and \
+        df.within_step_change(step) > 1.0
+    assert df.within_step_change(held) == 0.0 and df.within_step_change(step[:1]) == 0.0
+    engine = [df.within_step_change(step)] * 5
+    mask = np.ones(5, bool)
+    assert df.summarize([(_scored(engine, engine), mask)])["within_step_change_ratio"] == 1.0
+    jumping = df.summarize([(_scored(engine, [0.0] * 5), mask)])
+    assert jumping["within_step_change_ratio"] == 0.0 and jumping["view_change_ratio"] == 1.0
+    assert df.summarize([(_scored(engine, None), mask)])["within_step_change_ratio"] is None
+
+
 def test_drifting_dream_on_a_still_engine_has_drift_fraction_one():
     still = np.repeat(_scene_HW3(0)[None], 6, axis=0)  # the engine stands still: every step changes 0
     drifting = np.stack([np.clip(f.astype(int) + 4 * i, 0, 255) for i, f in enumerate(still)]).astype(np.uint8)
@@ -337,9 +365,16 @@ def test_warp_formula_replays_the_warps_on_pixels():
 def test_dream_seed_moves_only_the_dream_reset_seed():
     """``--dream-seed`` adds to the dream's reset seed (its sampling noise) and leaves the start state and the
     actions as the engine played them."""
-    class Recorder:  # the two calls dream_rollout makes of a dream env
+    class Recorder:  # what dream_rollout uses of a dream env
+        possible_agents = [df.LEARNER, df.PARTNER]
+
         def __init__(self):
             self.resets, self.steps = [], []
+
+        def step_frames(self):  # (P, k, H, W, 3)
+            frames = np.zeros((2, 2, 2, 2, 3), np.uint8)
+            frames[0, 1] = 3  # the learner's k = 2 frames differ by 3 grey levels, the partner's not at all
+            return frames
 
         def reset(self, seed, options):
             self.resets.append((seed, options["engine_state"]))
@@ -354,9 +389,10 @@ def test_dream_seed_moves_only_the_dream_reset_seed():
                          np.zeros((4, 2, 2, 3), np.uint8), np.zeros(4), [None] * 4, np.zeros((4, 2)))
     for dream_seed in (0, 5):
         env = Recorder()
-        frames = df.dream_rollout(env, rollout, dream_seed)
+        frames, within = df.dream_rollout(env, rollout, dream_seed)
         assert env.resets == [(41 + dream_seed, "START")] and env.steps == actions
         assert frames.shape == (4, 2, 2, 3) and frames[3, 0, 0, 0] == 3
+        np.testing.assert_allclose(within, [3.0, 3.0, 3.0])  # the learner's step frames, not the partner's
     with pytest.raises(ValueError, match="--dream-seed"):
         df.main(["--dream-seed", "-1"])
 
