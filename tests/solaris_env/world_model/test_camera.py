@@ -352,3 +352,87 @@ def test_previous_skip_gate_learns_from_zero():
     grads = nnx.grad(loss)(model)
     assert float(jnp.abs(grads["skip_gate"]["bias"].get_value()).min()) > 0
     assert float(jnp.abs(grads["skip_gate"]["kernel"].get_value()).max()) > 0
+
+
+# ---------------------------------------------------------------------------------------------
+# Pixel-space warp (DiTConfig.warp_space = "pixels")
+# ---------------------------------------------------------------------------------------------
+
+def test_tick_turns_and_moves_are_cumulative_and_end_at_the_frame_totals():
+    mouse = jax.random.normal(jax.random.key(0), (2, 1, 3, 12, 2))
+    keys = _keys("forward", ticks=2)
+    turns, moves = camera_lib.tick_turns(mouse, 4), camera_lib.tick_moves(jnp.asarray(keys), 4)
+    assert turns.shape == (2, 1, 3, 4, 2) and moves.shape == (1, 1, 1, 4, 2)
+    np.testing.assert_allclose(turns[..., 0, :], mouse[..., 8, :] * camera_lib.CAMERA_SCALE_DEG, rtol=1e-6)
+    np.testing.assert_allclose(turns[..., -1, :], camera_lib.frame_turns(mouse, 4), rtol=1e-6)
+    np.testing.assert_allclose(moves[0, 0, 0], [[0, 0], [0, 0], [1, 0], [2, 0]], atol=1e-6)  # the last 2 ticks walk
+    np.testing.assert_allclose(moves[..., -1, :], camera_lib.frame_moves(jnp.asarray(keys), 4), atol=1e-6)
+
+
+def test_warp_ticks_moves_the_frame_by_each_ticks_cumulative_turn_and_walk():
+    from solaris_env.spaces import MODEL_INDEX
+    frame = jax.random.uniform(jax.random.key(1), (2, 16, 16, 3))
+    mouse = jnp.zeros((2, 12, 2)).at[0, 8:, 0].set(1.0).at[1, 9, 1].set(-2.0)  # yaw every tick / one pitch tick
+    keyboard = jnp.zeros((2, 12, 23)).at[0, 10:, MODEL_INDEX["forward"]].set(1.0)
+    ppd, walk = (0.4, 0.3), 0.2
+    out = camera_lib.warp_ticks(frame, mouse, keyboard, 4, ppd, walk, "cubic")
+    assert out.shape == (2, 4, 16, 16, 3)
+    turns = camera_lib.tick_turns(mouse[:, None], 4)[:, 0]  # (2, 4, 2)
+    moves = camera_lib.tick_moves(keyboard[:, None], 4)[:, 0] * walk
+    for n in range(2):
+        for j in range(4):
+            want = camera_lib.walk_latents(frame[n:n + 1], moves[n, j][None])
+            want = camera_lib.shift_latents(want, camera_lib.content_shift(turns[n, j][None], ppd), "cubic")
+            np.testing.assert_allclose(out[n, j], want[0], atol=1e-6)
+    # still ticks repeat the frame exactly; a turning tick moves it
+    still = camera_lib.warp_ticks(frame, jnp.zeros((2, 12, 2)), jnp.zeros((2, 12, 23)), 4, ppd, walk, "cubic")
+    np.testing.assert_allclose(still, jnp.broadcast_to(frame[:, None], still.shape), atol=1e-6)
+    assert float(jnp.abs(out[0, 1] - out[0, 0]).max()) > 1e-3  # the within-step motion the latent warp lacks
+    np.testing.assert_allclose(out[1, 0], frame[1], atol=1e-6)  # the pitch comes at tick 1
+
+
+def _pixel_cfg() -> WorldModelConfig:
+    cfg = _warp_cfg()
+    return cfg.replace(dit=dataclasses.replace(cfg.dit, walk_warp=0.13, warp_space="pixels"),
+                       vae=dataclasses.replace(cfg.vae, codec="linear_patch"))
+
+
+def test_pixel_warp_config():
+    with pytest.raises(ValueError, match="warp_space"):
+        DiTConfig(warp_space="pixel")
+    with pytest.raises(ValueError, match="warp_space"):
+        DiTConfig(warp_space="pixels")  # no camera warp
+    with pytest.raises(ValueError, match="linear_patch"):
+        _warp_cfg().replace(dit=dataclasses.replace(_warp_cfg().dit, warp_space="pixels"))  # the Wan VAE
+    cfg = _pixel_cfg()
+    assert cfg.patch_in_channels == _warp_cfg().patch_in_channels  # the same input rows, other content
+
+
+@pytest.fixture(scope="module")
+def pixel_model():
+    return _turning(_pixel_cfg(), seed=34)
+
+
+def test_pixel_warp_cached_rollout_equals_teacher_forcing_and_causal(pixel_model):
+    cfg, model, inp = pixel_model
+    from solaris_env.spaces import MODEL_INDEX
+    inp = dict(inp, keyboard=inp["keyboard"].at[..., MODEL_INDEX["forward"]].set(1.0))
+    _cached_rollout_agrees(cfg, model, inp)
+
+
+def test_pixel_warp_input_is_the_moved_last_frame_encoded(pixel_model):
+    """The warp input: each previous latent decoded by the codec copy, its last frame (clipped) moved tick by
+    tick at the latent pixels per degree times the spatial factor, the k moved frames encoded."""
+    cfg, model, inp = pixel_model
+    prev = inp["clean"]
+    mouse_w = model._windows(inp["mouse"], prev.shape[2])
+    keyboard_w = model._windows(inp["keyboard"], prev.shape[2])
+    got = model._warped(prev, mouse_w, keyboard_w)
+    flat = lambda a: a.reshape((-1,) + a.shape[3:])
+    codec, sf = model.warp_codec, cfg.vae.spatial_factor
+    last = jnp.clip(codec.decode(flat(prev))[:, -1], -1.0, 1.0)
+    ticks = camera_lib.warp_ticks(last, flat(mouse_w), flat(keyboard_w), cfg.frames_per_step,
+                                  (WARP[0] * sf, WARP[1] * sf), 0.13, cfg.dit.warp_interp)
+    np.testing.assert_allclose(got, codec.encode(ticks).reshape(prev.shape), atol=1e-5)
+    latent = cfg.replace(dit=dataclasses.replace(cfg.dit, warp_space="latent"))
+    assert float(jnp.abs(got - _build(latent, seed=34)._warped(prev, mouse_w, keyboard_w)).max()) > 1e-2
