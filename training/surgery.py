@@ -31,8 +31,8 @@ from solaris_env.world_model import checkpoint
 from solaris_env.world_model.action_module import rescaled_mouse_kernel
 from solaris_env.world_model.components import COMPONENTS
 from solaris_env.world_model.config import VAEConfig
-from solaris_env.world_model.dit import WorldDiT, skip_gate
-from solaris_env.world_model.vae import CausalVideoVAE, LinearCodecCopy
+from solaris_env.world_model.dit import skip_gate
+from solaris_env.world_model.vae import CausalVideoVAE
 from solaris_env.world_model.world_model import WorldModel
 from training.vae import DECODER_MODULES
 
@@ -111,7 +111,7 @@ def with_vae(model: str | Path, vae_from: str | Path, dest: str | Path) -> Path:
 def with_action_conditioning(model: str | Path, dest: str | Path, mouse_input_gain: float | None = None,
                              camera_warp: tuple[float, float] | None = None,
                              walk_warp: float | None = None, previous_skip: bool | None = None,
-                             warp_interp: str | None = None, warp_space: str | None = None) -> Path:
+                             warp_interp: str | None = None) -> Path:
     """Write ``model`` under another action conditioning, computing the same function (None keeps a setting):
 
     * ``mouse_input_gain``: the mouse rows of every ``mouse_mlp`` first kernel scaled by old / new gain, so
@@ -125,10 +125,7 @@ def with_action_conditioning(model: str | Path, dest: str | Path, mouse_input_ga
     * ``previous_skip=True``: turns on ``DiTConfig.previous_skip`` with its gates at zero (needs the camera warp,
       given or already on); from a model that has it, its trained gates are kept;
     * ``warp_interp``: sets ``DiTConfig.warp_interp`` (how the camera warp samples between latent pixels); the
-      weights are kept, the function changes wherever the camera turns by a fraction of a latent pixel;
-    * ``warp_space``: sets ``DiTConfig.warp_space`` (where the warp moves the previous frame; "pixels" needs the
-      linear patch codec); the weights are kept, the DiT gets the codec's copy, and the warp input changes
-      wherever the player turns or walks.
+      weights are kept, the function changes wherever the camera turns by a fraction of a latent pixel.
     """
     base = WorldModel.load(model)
     old = base.config
@@ -142,15 +139,13 @@ def with_action_conditioning(model: str | Path, dest: str | Path, mouse_input_ga
         dit = dataclasses.replace(dit, previous_skip=bool(previous_skip))
     if warp_interp is not None:
         dit = dataclasses.replace(dit, warp_interp=warp_interp)
-    if warp_space is not None:
-        dit = dataclasses.replace(dit, warp_space=warp_space)
     if old.dit.previous_skip and not dit.previous_skip:
         raise ValueError(f"{model} was trained with previous_skip; dropping it would drop its trained skip gates")
     if old.dit.camera_warp_enabled and not dit.camera_warp_enabled:
         raise ValueError(f"{model} was trained with camera_warp={old.dit.camera_warp}; dropping it would drop its "
                          "patch embedding's trained warp rows")
     cfg = old.replace(action=action, dit=dit)
-    dit_state = base.params[0]
+    dit_state, vae_state, encoder_state = base.params
     if cfg.patch_in_channels != old.patch_in_channels:  # the warped previous latent's rows, at zero
         pe = dit_state["patch_embedding"]["kernel"]
         k = pe.get_value()
@@ -161,27 +156,21 @@ def with_action_conditioning(model: str | Path, dest: str | Path, mouse_input_ga
         dit_state["skip_gate"] = nnx.state(skip_gate(cfg, nnx.Rngs(0)), nnx.Param)
     kernel = dit_state["blocks"]["action_model"]["mouse_mlp"]["layers"][0]["kernel"]
     kernel.set_value(rescaled_mouse_kernel(kernel.get_value(), old, action.mouse_input_gain))
-    graphdef, abstract = nnx.split(nnx.eval_shape(lambda: WorldDiT(cfg, rngs=nnx.Rngs(0))))
-    dit_state = {k: v for k, v in dit_state.items() if k in abstract}  # a dropped pixel warp's codec copy
-    if dit.warp_space == "pixels" and "warp_codec" not in dit_state:  # zeros here; WorldModel sets it from the VAE
-        dit_state["warp_codec"] = nnx.state(LinearCodecCopy(cfg.vae))
-    dit_module = nnx.merge(graphdef, nnx.State(dit_state))
-    _, vae_module, encoder_module = base.modules()
-    WorldModel(cfg, dit_module, vae_module, encoder_module).save(dest)
+    checkpoint.save(dest, cfg, dict(zip(COMPONENTS, (dit_state, vae_state, encoder_state))))
     return Path(dest)
 
 
 def official_dit(model: str | Path, dest: str | Path, seed: int = 0) -> Path:
     """Write ``model``'s VAE and image encoder, unchanged, with a freshly initialised DiT (``seed``) in the
     official layout to ``dest``: our DiT options at their official values (``DiTConfig.camera_warp``,
-    ``walk_warp`` and ``previous_skip`` off, ``warp_interp`` linear, ``warp_space`` latent,
+    ``walk_warp`` and ``previous_skip`` off, ``warp_interp`` linear,
     ``ActionConfig.mouse_input_gain`` 1), every size as ``model``'s. Trained through the DiT stages with the
     same steps and data as ``model``'s DiT, it is the control that measures those options (docs/training.md,
     "The control row")."""
     base = WorldModel.load(model_directory(model))
     old = base.config
     dit = dataclasses.replace(old.dit, camera_warp=(0.0, 0.0), walk_warp=0.0, previous_skip=False,
-                              warp_interp="linear", warp_space="latent")
+                              warp_interp="linear")
     cfg = old.replace(dit=dit,
                       action=dataclasses.replace(old.action, mouse_input_gain=1.0))
     fresh_dit, _, _ = WorldModel.from_config(cfg, seed=seed).params

@@ -24,17 +24,11 @@ from solaris_env.spaces import CAMERA_SCALE_DEG, MODEL_INDEX
 from solaris_env.world_model.config import WARP_INTERPOLATIONS
 
 
-def tick_turns(mouse_BPFWA: jax.Array, frames_per_step: int) -> jax.Array:
-    """(B, P, F, k, 2) [yaw (+ left), pitch (+ up)] degrees turned from latent frame i - 1 to each of the k video
-    ticks of frame i (cumulative: entry k - 1 is the whole frame's turn, ``frame_turns``)."""
-    if mouse_BPFWA.shape[-1] != 2:
-        raise ValueError(f"the camera reads [cameraX, cameraY]; the mouse windows have {mouse_BPFWA.shape[-1]} dims")
-    return jnp.cumsum(mouse_BPFWA[..., -frames_per_step:, :].astype(jnp.float32), axis=-2) * CAMERA_SCALE_DEG
-
-
 def frame_turns(mouse_BPFWA: jax.Array, frames_per_step: int) -> jax.Array:
     """(B, P, F, 2) [yaw (+ left), pitch (+ up)] degrees turned between latent frames i - 1 and i."""
-    return tick_turns(mouse_BPFWA, frames_per_step)[..., -1, :]
+    if mouse_BPFWA.shape[-1] != 2:
+        raise ValueError(f"the camera reads [cameraX, cameraY]; the mouse windows have {mouse_BPFWA.shape[-1]} dims")
+    return mouse_BPFWA[..., -frames_per_step:, :].astype(jnp.float32).sum(axis=-2) * CAMERA_SCALE_DEG
 
 
 def content_shift(turns_BPF2: jax.Array, pixels_per_degree: tuple[float, float]) -> jax.Array:
@@ -93,12 +87,11 @@ SNEAK_FACTOR = 1.295 / 4.317  # sneak / walk
 _MIN_DEPTH = 0.2  # the source depth factor is kept above this (a step back on the nearest rows)
 
 
-def tick_moves(keyboard_BPFWK: jax.Array, frames_per_step: int) -> jax.Array:
-    """(B, P, F, k, 2) [forward, right] how far the player walked from latent frame i - 1 to each of the k video
-    ticks of frame i, in ticks of walking at full speed (cumulative: entry k - 1 is ``frame_moves``): the last
-    ``k`` ticks of the frame's keyboard window, forward - back and right - left, a diagonal normalised to length
-    1 (as the engine and Minecraft do), sprint (forward only) and sneak scaling the speed. Momentum is left out
-    (a fitted ``walk_warp`` absorbs the average)."""
+def frame_moves(keyboard_BPFWK: jax.Array, frames_per_step: int) -> jax.Array:
+    """(B, P, F, 2) [forward, right] how far the player walked between latent frames i - 1 and i, in ticks of
+    walking at full speed: the last ``k`` ticks of the frame's keyboard window, forward - back and right - left,
+    a diagonal normalised to length 1 (as the engine and Minecraft do), sprint (forward only) and sneak scaling
+    the speed. Momentum is left out (a fitted ``walk_warp`` absorbs the average)."""
     if keyboard_BPFWK.shape[-1] <= max(_KEY.values()):
         raise ValueError(f"the walk reads the movement keys of the model's keyboard vector "
                          f"(spaces.MODEL_ACTION_KEYS); the keyboard windows have {keyboard_BPFWK.shape[-1]} dims")
@@ -109,13 +102,7 @@ def tick_moves(keyboard_BPFWK: jax.Array, frames_per_step: int) -> jax.Array:
     speed = jnp.where((keys[..., _KEY["sprint"]] > 0) & (forward > 0), SPRINT_FACTOR, 1.0)
     speed = jnp.where(keys[..., _KEY["sneak"]] > 0, SNEAK_FACTOR, speed)
     step = jnp.stack([forward, right], axis=-1) * (speed / norm)[..., None]
-    return jnp.cumsum(step, axis=-2)
-
-
-def frame_moves(keyboard_BPFWK: jax.Array, frames_per_step: int) -> jax.Array:
-    """(B, P, F, 2) [forward, right] how far the player walked between latent frames i - 1 and i (``tick_moves``
-    of the frame's last tick)."""
-    return tick_moves(keyboard_BPFWK, frames_per_step)[..., -1, :]
+    return step.sum(axis=-2)
 
 
 def walk_source(h: int, w: int, move_N2: jax.Array) -> tuple[jax.Array, jax.Array]:
@@ -163,8 +150,7 @@ def walk_latents(x_NhwC: jax.Array, move_N2: jax.Array) -> jax.Array:
 
 
 # ---------------------------------------------------------------------------------------------
-# Both warps together (the DiT's warp input; ``benchmarks.dream_fidelity.WarpFormula`` on pixels), on latents
-# (``warp_previous``) or tick by tick on a video frame (``warp_ticks``)
+# Both warps together (the DiT's warp input; ``benchmarks.dream_fidelity.WarpFormula`` on pixels)
 # ---------------------------------------------------------------------------------------------
 
 
@@ -177,17 +163,3 @@ def warp_previous(prev_NhwC: jax.Array, mouse_NWA: jax.Array, keyboard_NWK: jax.
         x = walk_latents(x, frame_moves(keyboard_NWK, frames_per_step) * walk_warp)
     return shift_latents(x, content_shift(frame_turns(mouse_NWA, frames_per_step), pixels_per_degree), interp)
 
-
-
-def warp_ticks(frame_NHWC: jax.Array, mouse_NWA: jax.Array, keyboard_NWK: jax.Array, frames_per_step: int,
-               pixels_per_degree: tuple[float, float], walk_warp: float, interp: str) -> jax.Array:
-    """(N, k, H, W, C): each frame as seen after each of the k ticks of its action window, moved by the ticks'
-    cumulative walk (``walk_latents``) and then turn (``shift_latents``); ``pixels_per_degree`` in this frame's
-    pixels. The video-frame form of ``warp_previous`` (``DiTConfig.warp_space = "pixels"``): a step's k frames
-    move tick by tick, as the engine's do."""
-    n, k = frame_NHWC.shape[0], frames_per_step
-    x = jnp.repeat(frame_NHWC.astype(jnp.float32), k, axis=0)  # (N * k, H, W, C), frame-major
-    if walk_warp:
-        x = walk_latents(x, tick_moves(keyboard_NWK, k).reshape(n * k, 2) * walk_warp)
-    shift = content_shift(tick_turns(mouse_NWA, k), pixels_per_degree).reshape(n * k, 2)
-    return shift_latents(x, shift, interp).reshape((n, k) + frame_NHWC.shape[1:])

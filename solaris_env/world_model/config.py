@@ -18,7 +18,6 @@ MULTIPLAYER_METHODS = ("attn", "concat")
 COND_ENCODINGS = ("video", "image")
 VAE_CODECS = ("wan", "linear_patch")
 WARP_INTERPOLATIONS = ("linear", "cubic")  # how the camera warp samples between latent pixels (DiTConfig.warp_interp)
-WARP_SPACES = ("latent", "pixels")  # where the camera warp moves the previous frame (DiTConfig.warp_space)
 
 
 def _require(cond: bool, msg: str) -> None:
@@ -68,12 +67,6 @@ class DiTConfig:
     # How the camera warp samples between latent pixels: "linear", or "cubic" (Catmull-Rom), which blurs less
     # when a rollout shifts its own frames step after step (``camera.shift_latents``; docs/model.md §8.1).
     warp_interp: str = "linear"
-    # Where the camera warp moves the previous frame (docs/model.md §8.4): "latent" moves the previous latent by the
-    # whole step's turn and walk; "pixels" decodes it with the linear patch codec, moves its last video frame by
-    # each tick's cumulative turn and walk and encodes the k moved frames, so the warp input also carries the
-    # motion between the step's frames (the codec's temporal channels). Needs the camera warp and
-    # ``VAEConfig.codec = "linear_patch"``; the DiT keeps a copy of the codec (``WorldDiT.warp_codec``).
-    warp_space: str = "latent"
 
     def __post_init__(self):
         _require(self.dim % self.num_heads == 0, f"dim={self.dim} must be divisible by num_heads={self.num_heads}")
@@ -87,10 +80,6 @@ class DiTConfig:
                  f"walk_warp={self.walk_warp} moves the camera warp's input; it needs camera_warp on")
         _require(self.warp_interp in WARP_INTERPOLATIONS,
                  f"warp_interp must be one of {WARP_INTERPOLATIONS}, got {self.warp_interp!r}")
-        _require(self.warp_space in WARP_SPACES, f"warp_space must be one of {WARP_SPACES}, got {self.warp_space!r}")
-        _require(self.warp_space == "latent" or self.camera_warp_enabled,
-                 f"warp_space={self.warp_space!r} is where the camera warp moves the previous frame; it needs "
-                 f"camera_warp on")
         _require(not self.previous_skip or self.camera_warp_enabled,
                  f"previous_skip={self.previous_skip} adds the camera warp's previous latent; it needs camera_warp on")
         _require(self.head_dim % 2 == 0, f"head_dim={self.head_dim} must be even for RoPE")
@@ -346,9 +335,6 @@ class WorldModelConfig:
                  f"num_players={self.num_players} exceeds dit.max_players={self.dit.max_players}")
         _require(self.action.num_action_blocks <= self.dit.num_layers,
                  f"action.num_action_blocks={self.action.num_action_blocks} > dit.num_layers={self.dit.num_layers}")
-        _require(self.dit.warp_space == "latent" or self.vae.codec == "linear_patch",
-                 f"dit.warp_space={self.dit.warp_space!r} decodes and encodes with the linear patch codec; it needs "
-                 f"vae.codec='linear_patch', got {self.vae.codec!r}")
         _require(self.sampler.noise_warp == 0.0 or self.dit.camera_warp_enabled,
                  f"sampler.noise_warp={self.sampler.noise_warp} moves the noise by the camera warp's pixels per "
                  f"degree; it needs dit.camera_warp on")

@@ -43,7 +43,6 @@ from solaris_env.world_model.action_module import ActionModule, action_windows, 
 from solaris_env.world_model.attention import (RMSNorm, attention, attention_heads_major, dense, layer_norm,
                                                stop_gradient_where)
 from solaris_env.world_model.config import WorldModelConfig
-from solaris_env.world_model.vae import LinearCodecCopy
 
 # ---------------------------------------------------------------------------------------------
 # Helpers
@@ -454,8 +453,6 @@ class WorldDiT(nnx.Module):
         self.head = Head(cfg, rngs=rngs)
         if d.previous_skip:
             self.skip_gate = skip_gate(cfg, rngs)
-        if d.warp_space == "pixels":  # the pixel-space warp's codec (set from the VAE by WorldModel)
-            self.warp_codec = LinearCodecCopy(cfg.vae)
 
     # -- entry points ------------------------------------------------------------------------------
     def forward_bidirectional(self, x, t, cond, context, mouse, keyboard, clean=None) -> jax.Array:
@@ -605,17 +602,10 @@ class WorldDiT(nnx.Module):
             raise ValueError("camera_warp is on but no previous latents were given")
         lead = prev_BPFhwC.shape[:3]
         flat = lambda a: a.reshape((-1,) + a.shape[3:])
-        dit, k = self.cfg.dit, self.cfg.frames_per_step
-        if dit.warp_space == "pixels":  # the last decoded frame moved tick by tick, re-encoded (docs/model.md §8.4)
-            last_NHWC = jnp.clip(self.warp_codec.decode(flat(prev_BPFhwC))[:, -1], -1.0, 1.0)
-            sf = self.cfg.vae.spatial_factor
-            ticks = camera_lib.warp_ticks(last_NHWC, flat(mouse_BPFWA), flat(keyboard_BPFWA), k,
-                                          (dit.camera_warp[0] * sf, dit.camera_warp[1] * sf), dit.walk_warp,
-                                          dit.warp_interp)
-            return self.warp_codec.encode(ticks).reshape(lead + prev_BPFhwC.shape[3:])
-        return camera_lib.warp_previous(flat(prev_BPFhwC), flat(mouse_BPFWA), flat(keyboard_BPFWA), k,
-                                        dit.camera_warp, dit.walk_warp, dit.warp_interp).reshape(
-                                            lead + prev_BPFhwC.shape[3:])
+        dit = self.cfg.dit
+        return camera_lib.warp_previous(flat(prev_BPFhwC), flat(mouse_BPFWA), flat(keyboard_BPFWA),
+                                        self.cfg.frames_per_step, dit.camera_warp, dit.walk_warp,
+                                        dit.warp_interp).reshape(lead + prev_BPFhwC.shape[3:])
 
     def _cached_previous(self, x, cache: kv_cache.DiTCache):
         """Previous latents of the F new frames of a cached pass: the cache's last frame, then x's own."""

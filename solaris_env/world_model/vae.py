@@ -113,52 +113,6 @@ def unpatchify(patches_BFhwD: jax.Array, tf: int, sf: int, first: bool) -> jax.A
     return video
 
 
-class CodecCopy(nnx.Variable):
-    """A constant copy of VAE weights held by another module (never an ``nnx.Param``: no optimiser moves it)."""
-
-
-class LinearCodecCopy(nnx.Module):
-    """The linear patch codec on normalised latents, as two affine maps with the latent statistics folded in:
-    what the DiT's pixel-space camera warp (``DiTConfig.warp_space = "pixels"``) decodes and encodes with.
-    Its values are set from a VAE by ``copy_from`` (``WorldModel`` does it, so a model's copy is its VAE's).
-    """
-
-    def __init__(self, cfg: VAEConfig):
-        if cfg.codec != "linear_patch":
-            raise ValueError(f"LinearCodecCopy copies the linear patch codec; vae.codec is {cfg.codec!r}")
-        self.cfg = cfg
-        d = cfg.temporal_factor * cfg.spatial_factor ** 2 * 3
-        self.decode_kernel = CodecCopy(jnp.zeros((cfg.z_dim, d), jnp.float32))
-        self.decode_bias = CodecCopy(jnp.zeros((d,), jnp.float32))
-        self.encode_kernel = CodecCopy(jnp.zeros((d, cfg.z_dim), jnp.float32))
-        self.encode_bias = CodecCopy(jnp.zeros((cfg.z_dim,), jnp.float32))
-
-    def copy_from(self, vae: "CausalVideoVAE") -> None:
-        """Set the copy to ``vae``'s codec (its latent statistics folded in)."""
-        if vae.cfg != self.cfg:
-            raise ValueError(f"the codec copy was built for {self.cfg}; the VAE has {vae.cfg}")
-        z = self.cfg.z_dim  # no statistics: normalisation is the identity (``normalize_latents``)
-        mean = jnp.asarray(self.cfg.latent_mean or [0.0] * z, jnp.float32)
-        std = jnp.asarray(self.cfg.latent_std or [1.0] * z, jnp.float32)
-        w_out, b_out = vae.patch_out.kernel.get_value().astype(jnp.float32), vae.patch_out.bias.get_value()
-        w_in, b_in = vae.patch_in.kernel.get_value().astype(jnp.float32), vae.patch_in.bias.get_value()
-        self.decode_kernel.set_value(std[:, None] * w_out)  # z -> mu = z * std + mean -> patch
-        self.decode_bias.set_value(mean @ w_out + b_out.astype(jnp.float32))
-        self.encode_kernel.set_value(w_in / std[None, :])  # patch -> mu -> (mu - mean) / std
-        self.encode_bias.set_value((b_in.astype(jnp.float32) - mean) / std)
-
-    def decode(self, z_NhwC: jax.Array) -> jax.Array:
-        """Normalised latents (N, h, w, z_dim) -> each one's tf video frames (N, tf, H, W, 3), un-clipped."""
-        patches = z_NhwC.astype(jnp.float32) @ self.decode_kernel.get_value() + self.decode_bias.get_value()
-        return unpatchify(patches[:, None], self.cfg.temporal_factor, self.cfg.spatial_factor, first=False)
-
-    def encode(self, video_NTHWC: jax.Array) -> jax.Array:
-        """tf video frames per latent (N, tf, H, W, 3) -> normalised latents (N, h, w, z_dim)."""
-        patches = patchify(video_NTHWC.astype(jnp.float32), self.cfg.temporal_factor, self.cfg.spatial_factor,
-                           first=False)[:, 0]
-        return patches @ self.encode_kernel.get_value() + self.encode_bias.get_value()
-
-
 # ---------------------------------------------------------------------------------------------
 # Primitives: convolutions with a time axis, RMS norm
 # ---------------------------------------------------------------------------------------------

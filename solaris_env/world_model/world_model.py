@@ -445,8 +445,6 @@ class WorldModel:
     """
 
     def __init__(self, config: WorldModelConfig, dit: WorldDiT, vae: CausalVideoVAE, image_encoder: ImageEncoder):
-        if config.dit.warp_space == "pixels":  # the DiT's copy of the codec is always this VAE's (sets it in dit)
-            dit.warp_codec.copy_from(vae)
         graphdefs, params = zip(*(nnx.split(m) for m in (dit, vae, image_encoder)))
         programs = Programs(config, tuple(graphdefs))
         self._setup(config, programs, on_host(programs.step_params, tuple(params)))  # the only copy kept

@@ -68,35 +68,3 @@ def test_with_vae_takes_the_whole_vae_and_keeps_the_dit_and_image_encoder(tmp_pa
     with pytest.raises(SystemExit, match="the DiT needs the same latent shape"):
         cli.main(["with-vae", str(tmp_path / "model"), "--vae-from", str(tmp_path / "z8"),
                   "--out", str(tmp_path / "x")])
-
-
-def test_action_conditioning_warp_space_pixels_gives_the_dit_its_vaes_codec(tmp_path):
-    """``action-conditioning --warp-space pixels``: the config set, every trained weight kept bit for bit, the DiT's
-    codec copy equal to the model's VAE codec; back to ``latent`` drops the copy; the Wan VAE is refused."""
-    import pytest
-
-    from solaris_env.world_model.vae import LinearCodecCopy
-    from training.surgery import with_action_conditioning
-
-    base = preset("test")
-    cfg = base.replace(dit=dataclasses.replace(base.dit, camera_warp=(0.1, 0.06), walk_warp=0.1, previous_skip=True),
-                       vae=dataclasses.replace(base.vae, codec="linear_patch"))
-    WorldModel.from_config(cfg, seed=4).save(tmp_path / "src")
-    assert cli.main(["action-conditioning", str(tmp_path / "src"), "--warp-space", "pixels",
-                     "--out", str(tmp_path / "px")]) == 0
-    src, px = WorldModel.load(tmp_path / "src"), WorldModel.load(tmp_path / "px")
-    assert px.config.dit.warp_space == "pixels" and px.config.replace(dit=cfg.dit) == src.config
-    dit = dict(px.params[0])
-    codec = dit.pop("warp_codec")
-    assert all(np.array_equal(a, b) for a, b in zip(_leaves(dit), _leaves(src.params[0])))
-    for mine, theirs in zip(px.params[1:], src.params[1:]):
-        assert all(np.array_equal(a, b) for a, b in zip(_leaves(mine), _leaves(theirs)))
-    want = LinearCodecCopy(cfg.vae)
-    want.copy_from(src.modules()[1])
-    from flax import nnx
-    assert all(np.allclose(a, b, atol=1e-6) for a, b in zip(_leaves(codec), _leaves(nnx.state(want))))
-    back = with_action_conditioning(tmp_path / "px", tmp_path / "back", warp_space="latent")
-    assert "warp_codec" not in WorldModel.load(back).params[0]
-    WorldModel.from_config(base.replace(dit=cfg.dit), seed=4).save(tmp_path / "wan")
-    with pytest.raises(ValueError, match="linear_patch"):
-        with_action_conditioning(tmp_path / "wan", tmp_path / "bad", warp_space="pixels")

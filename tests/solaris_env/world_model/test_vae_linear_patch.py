@@ -134,22 +134,3 @@ def test_fit_needs_the_codec_and_enough_patches():
         fit_linear_patch_codec(CausalVideoVAE(WorldModelConfig.test().vae, rngs=rngs()), [])
     with pytest.raises(ValueError, match="more clips"):
         fit_linear_patch_codec(CausalVideoVAE(FIT, rngs=rngs()), [np.zeros((1, 5, 4, 4, 3), np.uint8)])
-
-
-def test_the_codec_copy_decodes_and_encodes_as_the_vae(vae, video):
-    """``LinearCodecCopy`` (the DiT's pixel-space warp) on normalised latents == the VAE's decode_raw / encode of
-    later chunks, its latent statistics folded in."""
-    from solaris_env.world_model.vae import LinearCodecCopy
-    stats = dict(latent_mean=tuple(np.linspace(-0.5, 0.5, CFG.z_dim)), latent_std=tuple(np.linspace(0.5, 2.0, CFG.z_dim)))
-    model = CausalVideoVAE(dataclasses.replace(CFG, **stats), rngs=rngs(3))
-    copy = LinearCodecCopy(model.cfg)
-    copy.copy_from(model)
-    chunk = video[:, 1:]  # 2 later chunks of TF frames
-    z, _ = model.encode_chunked(chunk, cache=())
-    np.testing.assert_allclose(copy.encode(chunk.reshape(-1, TF, 32, 32, 3)), z.reshape(-1, *z.shape[2:]), atol=1e-5)
-    raw = model._decode_raw(model.denormalize(z), ())[0]  # later chunks: TF frames per latent
-    np.testing.assert_allclose(copy.decode(z.reshape(-1, *z.shape[2:])), raw.reshape(-1, TF, 32, 32, 3), atol=1e-5)
-    with pytest.raises(ValueError, match="built for"):
-        copy.copy_from(vae)
-    with pytest.raises(ValueError, match="linear patch"):
-        LinearCodecCopy(WorldModelConfig.test().vae)
