@@ -18,7 +18,8 @@ def _leaves(state):
 def test_official_dit_keeps_the_autoencoder_and_starts_a_fresh_official_dit(tmp_path):
     base = preset("test")
     ours = base.replace(dit=dataclasses.replace(base.dit, camera_warp=(0.1, 0.06), walk_warp=0.1, previous_skip=True),
-                        action=dataclasses.replace(base.action, mouse_input_gain=10.0))
+                        action=dataclasses.replace(base.action, mouse_input_gain=10.0),
+                        sampler=dataclasses.replace(base.sampler, noise_warp=0.9))  # as the shipped default
     WorldModel.from_config(ours, seed=3).save(tmp_path / "ours")
 
     assert cli.main(["official-dit", str(tmp_path / "ours"), "--out", str(tmp_path / "control"), "--seed", "5"]) == 0
@@ -27,8 +28,9 @@ def test_official_dit_keeps_the_autoencoder_and_starts_a_fresh_official_dit(tmp_
     assert cfg.dit.camera_warp == (0.0, 0.0) and not cfg.dit.camera_warp_enabled and cfg.dit.walk_warp == 0.0
     assert not cfg.dit.previous_skip and "skip_gate" not in control.params[0]
     assert cfg.action.mouse_input_gain == 1.0
+    assert cfg.sampler.noise_warp == 0.0  # fresh noise: warped noise needs the camera warp
     # every other field is the source's: only our options changed
-    assert cfg.replace(dit=ours.dit, action=ours.action) == src.config
+    assert cfg.replace(dit=ours.dit, action=ours.action, sampler=ours.sampler) == src.config
     # the autoencoder and the image encoder are the source's, bit for bit
     for mine, theirs in zip(control.params[1:], src.params[1:]):
         assert all(np.array_equal(a, b) for a, b in zip(_leaves(mine), _leaves(theirs)))
