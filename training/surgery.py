@@ -165,9 +165,8 @@ def official_dit(model: str | Path, dest: str | Path, seed: int = 0) -> Path:
     official layout to ``dest``: our options at their official values (``DiTConfig.camera_warp``,
     ``walk_warp`` and ``previous_skip`` off, ``warp_interp`` linear, ``ActionConfig.mouse_input_gain`` 1, and
     the sampler's ``noise_warp`` 0, fresh noise: it moves the noise with the camera warp), every size as
-    ``model``'s. Trained through the DiT stages with the
-    same steps and data as ``model``'s DiT, it is the control that measures those options (docs/training.md,
-    "The control row")."""
+    ``model``'s. Trained through the DiT stages with the same steps and data as ``model``'s DiT, it is the
+    control that measures those options (docs/training.md, "The control row")."""
     base = WorldModel.load(model_directory(model))
     old = base.config
     dit = dataclasses.replace(old.dit, camera_warp=(0.0, 0.0), walk_warp=0.0, previous_skip=False,
