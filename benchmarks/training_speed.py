@@ -3,6 +3,7 @@
     .venv/bin/python -m benchmarks.training_speed                              # tiny preset, ~10 min
     .venv/bin/python -m benchmarks.training_speed --run runs/tiny              # summarise a finished run instead
     .venv/bin/python -m benchmarks.training_speed --preset test --steps 10 --episodes 4   # smoke run
+    .venv/bin/python -m benchmarks.training_speed --remat-ab default          # one DiT train step, remat on/off
 
 Default mode: records a small dataset with the engine, then runs ``solaris-train all`` with every
 stage's config from ``training/configs/<preset>.json`` (batch size, clip length, learning rate as
@@ -15,6 +16,13 @@ interval (it holds the compilation). Tokens are what the stage's model sees per 
 clips for the VAE, latent tokens (batch x players x latent frames x tokens per frame) for the DiT stages.
 The measured mode also projects the wall-clock of the whole ``solaris-train all`` with the configured
 budgets (``project_all``). Writes ``benchmarks/results/training_speed.json``.
+
+``--remat-ab MODEL`` (``default`` or a model directory) times the DiT stage-3 train step of that model alone
+(``training.step.make_train_step``, the batch and clip length of the preset's ``mp-causal`` block, random frames:
+the time does not depend on them) with and without ``remat`` (docs/training.md, "Stage configs"), in alternating
+rounds in one process so that both see the same machine; it checks that both give the same losses, and reports
+each arm's median seconds per step, their ratio and the f32 matmul peak measured in the same run. Writes
+``benchmarks/results/training_step_remat.json``.
 """
 
 from __future__ import annotations
@@ -31,6 +39,7 @@ from pathlib import Path
 from solaris_env.paths import portable_path, portable_text
 
 RESULTS = Path(__file__).parent / "results" / "training_speed.json"
+REMAT_RESULTS = Path(__file__).parent / "results" / "training_step_remat.json"
 STAGES = ("vae", "vae-decoder", "sp", "mp-bidirectional", "mp-causal", "self-forcing")  # stage_config.STAGES[:-1]
 
 
@@ -115,6 +124,56 @@ def project_all(stages: dict, walls: dict, episodes: int, shipped: dict) -> dict
     return {"episodes": shipped["collect"]["episodes"], "parts_s": parts, "total_min": total / 60, "budget_min": 150}
 
 
+def remat_ab(model_spec: str, rounds: int, steps_per_round: int) -> dict:
+    """Seconds per stage-3 train step of ``model_spec`` with ``remat`` off and on, in alternating rounds."""
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    from benchmarks.model_step import matmul_peak_gflops
+    from solaris_env.dream_env import DEFAULT_CHECKPOINT
+    from solaris_env.world_model.world_model import WorldModel
+    from training.stage_config import load_stage_config
+    from training.step import TrainState, make_optimizer, make_train_step, prepare_batch
+
+    model = WorldModel.load(DEFAULT_CHECKPOINT if model_spec == "default" else model_spec)
+    cfg = model.config
+    sc = load_stage_config(cfg.name).stages["mp-causal"]
+    dit, vae, encoder = model.modules()
+    rng = np.random.default_rng(0)
+    shape = (sc.batch_size, sc.num_frames, cfg.num_players, cfg.frame_height, cfg.frame_width)
+    obs = jnp.asarray(rng.integers(0, 256, shape + (3,), dtype=np.uint8))
+    act = jnp.asarray(rng.normal(size=shape[:3] + (cfg.action.action_dim,)).astype(np.float32))
+    batch = jax.jit(lambda o, a: prepare_batch(vae, encoder, o, a, cfg))(obs, act)
+    arms = {}
+    for remat in (False, True):
+        tx = make_optimizer(sc.lr)
+        graphdef, state = TrainState.create(dit, tx, rng=0)
+        step = make_train_step(graphdef, "forward_causal", "diffusion_forcing", tx, sc.ema_decay, remat=remat)
+        state, metrics = step(state, batch)  # compiles
+        arms[remat] = {"step": step, "state": state, "losses": [float(metrics["loss"])], "s_per_step": []}
+    peak = [matmul_peak_gflops()]
+    for _ in range(rounds):
+        for arm in arms.values():
+            t = time.perf_counter()
+            for _ in range(steps_per_round):
+                arm["state"], metrics = arm["step"](arm["state"], batch)
+                arm["losses"].append(float(metrics["loss"]))
+            arm["s_per_step"].append((time.perf_counter() - t) / steps_per_round)
+    peak.append(matmul_peak_gflops())
+    off, on = arms[False], arms[True]
+    if not np.allclose(off["losses"], on["losses"], rtol=1e-4):
+        raise SystemExit(f"remat changed the losses: {off['losses']} against {on['losses']}")
+    median = {k: statistics.median(a["s_per_step"]) for k, a in (("off", off), ("on", on))}
+    return {"benchmark": "training_step_remat", "model": portable_text(model_spec), "preset": cfg.name,
+            "batch_size": sc.batch_size, "num_frames": sc.num_frames, "rounds": rounds,
+            "steps_per_round": steps_per_round, "s_per_step": {"off": off["s_per_step"], "on": on["s_per_step"]},
+            "median_s_per_step": median, "speedup": median["off"] / median["on"],
+            "losses_equal": True,
+            "max_loss_difference": float(np.max(np.abs(np.subtract(off["losses"], on["losses"])))),
+            "matmul_peak_gflops": peak}
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m benchmarks.training_speed", description=__doc__.split("\n\n")[0])
     p.add_argument("--preset", default="tiny")
@@ -124,9 +183,27 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--workdir", default=None, help="scratch directory (default: a temporary one)")
     p.add_argument("--out", default=str(RESULTS))
     p.add_argument("--note", default=None, help="recorded as is (e.g. how loaded the machine was during --run)")
+    p.add_argument("--remat-ab", metavar="MODEL", default=None,
+                   help="time MODEL's stage-3 train step with remat off and on instead (default or a directory)")
+    p.add_argument("--rounds", type=int, default=5, help="--remat-ab: alternating rounds per arm")
+    p.add_argument("--steps-per-round", type=int, default=3, help="--remat-ab: train steps per round")
     args = p.parse_args(argv)
 
     load_before = os.getloadavg()
+    if args.remat_ab:
+        from benchmarks.machine import machine_info
+        from training.samples import write_json
+
+        result = remat_ab(args.remat_ab, args.rounds, args.steps_per_round)
+        result["machine"] = machine_info(load_before)
+        med = result["median_s_per_step"]
+        print(f"{result['preset']} stage-3 train step, batch {result['batch_size']} x {result['num_frames']} frames: "
+              f"remat off {med['off']:.3f} s, on {med['on']:.3f} s -> {result['speedup']:.2f}x "
+              f"(f32 matmul peak {result['matmul_peak_gflops'][0]:.0f} GFLOP/s); the same losses")
+        out = REMAT_RESULTS if args.out == str(RESULTS) else Path(args.out)
+        write_json(out, result)
+        print(f"wrote {out}")
+        return 0
     if args.run:
         run = Path(args.run)
         cfg_path = run / "train_config.json"

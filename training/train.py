@@ -515,7 +515,7 @@ def train_flow(stage: str, out: str | Path, data_dir: str | Path, sc: FlowStageC
     else:
         tx = adamw
     graphdef, state = TrainState.create(dit, tx, rng=seed, ema=ema_decay > 0)
-    train_step = make_train_step(graphdef, fs.entry_point, fs.noise_type, tx, ema_decay)
+    train_step = make_train_step(graphdef, fs.entry_point, fs.noise_type, tx, ema_decay, sc.remat)
     from training.latents import batch_spec, make_prepare_latents
 
     batch_size = local_batch_size(sc.batch_size)

@@ -455,26 +455,28 @@ class WorldDiT(nnx.Module):
             self.skip_gate = skip_gate(cfg, rngs)
 
     # -- entry points ------------------------------------------------------------------------------
-    def forward_bidirectional(self, x, t, cond, context, mouse, keyboard, clean=None) -> jax.Array:
+    def forward_bidirectional(self, x, t, cond, context, mouse, keyboard, clean=None, *,
+                              remat: bool = False) -> jax.Array:
         """Full attention over all frames (stages 1-2, the DMD teacher). Returns v like x. ``clean``: the clean
         latents of ``x`` (training), whose previous frames the camera warp reads (a rollout's committed frames are
-        clean); default ``x`` itself."""
+        clean); default ``x`` itself. ``remat``: under differentiation the backward pass recomputes each layer
+        from its input instead of reading stored activations (the same values; docs/model.md §10.2)."""
         num_frames = self._validate(x, t, cond, context, mouse, keyboard)
         mouse_w = self._windows(mouse, num_frames)
         return self._forward_sequence(
             x, t, cond, context, mouse_w, self._windows(keyboard, num_frames),
-            rope.frame_positions(num_frames), frame_mask=None, kv_stop_F=None,
+            rope.frame_positions(num_frames), frame_mask=None, kv_stop_F=None, remat=remat,
             prev=_previous_frames(x if clean is None else clean))
 
-    def forward_causal(self, x, t, cond, context, mouse, keyboard, clean=None) -> jax.Array:
+    def forward_causal(self, x, t, cond, context, mouse, keyboard, clean=None, *, remat: bool = False) -> jax.Array:
         """Block-causal sliding window over frames (diffusion forcing: t varies per frame). Returns v like x.
-        ``clean`` as ``forward_bidirectional``."""
+        ``clean`` and ``remat`` as ``forward_bidirectional``."""
         num_frames = self._validate(x, t, cond, context, mouse, keyboard)
         mouse_w = self._windows(mouse, num_frames)
         return self._forward_sequence(
             x, t, cond, context, mouse_w, self._windows(keyboard, num_frames),
             rope.frame_positions(num_frames), masks.causal_window_frame_mask(num_frames, self.cfg.dit.window),
-            kv_stop_F=None, prev=_previous_frames(x if clean is None else clean))
+            kv_stop_F=None, remat=remat, prev=_previous_frames(x if clean is None else clean))
 
     def forward_teacher_forcing(self, clean, noisy, t_clean, t_noisy, cond, context, mouse, keyboard, *,
                                 kv_grad: bool = True, remat: bool = True) -> jax.Array:

@@ -42,3 +42,18 @@ def test_project_all_scales_collection_and_the_latent_cache_by_episodes():
     assert proj["parts_s"] == {"collect_s": 60.0, "vae_s": 100.0 + 5.0, "latent_cache_s": 150.0,
                                "sp_s": 100.0 + 5.0 + 150.0, "mp-bidirectional_s": 50.0 + 5.0}
     assert proj["total_min"] == (60.0 + 105.0 + 255.0 + 55.0) / 60
+
+
+def test_remat_ab_times_both_arms_and_checks_their_losses(tmp_path):
+    """``--remat-ab``: one model's stage-3 train step with remat off and on, alternating; the same losses."""
+    from benchmarks.training_speed import main
+    from solaris_env.world_model.world_model import WorldModel
+
+    WorldModel.from_preset("test", seed=0).save(tmp_path / "model")
+    out = tmp_path / "remat.json"
+    assert main(["--remat-ab", str(tmp_path / "model"), "--rounds", "2", "--steps-per-round", "1",
+                 "--out", str(out)]) == 0
+    result = json.loads(out.read_text())
+    assert result["preset"] == "test" and result["losses_equal"] and result["max_loss_difference"] < 1e-4
+    assert len(result["s_per_step"]["off"]) == len(result["s_per_step"]["on"]) == 2
+    assert result["speedup"] == result["median_s_per_step"]["off"] / result["median_s_per_step"]["on"] > 0

@@ -98,6 +98,10 @@ def test_config_errors_name_the_field():
     data = json.loads((cli.Path(__file__).resolve().parents[2] / "training/configs/sprint-tiny.json").read_text())
     cfg = SprintConfig.from_dict(data)
     assert stage_blocks(cfg, cfg.device("gpu")).stages["mp-causal"].steps >= 10**9
+    # remat (recompute in the backward pass) pays on the memory-bound CPU only; a GPU would just add arithmetic
+    for stage in ("sp", "mp-bidirectional", "mp-causal"):
+        assert stage_blocks(cfg, cfg.device("gpu")).stages[stage].remat is False
+        assert stage_blocks(cfg, cfg.device("cpu")).stages[stage].remat is True
     with pytest.raises(ValueError, match="fractions_from_init must not name"):
         SprintConfig.from_dict({**data, "fractions_from_init": {"vae": 1.0}})
     with pytest.raises(ValueError, match=r"devices.gpu.reserve_s must be a number >= 0"):

@@ -141,6 +141,28 @@ def test_loss_finite_at_init_and_overfits(modules, batch, steps, variant):
     assert loss20 < 0.95 * loss0, (variant, loss0, loss20, losses)
 
 
+@pytest.mark.parametrize("variant", list(VARIANTS))
+def test_remat_gives_the_same_loss_and_gradient(modules, batch, variant):
+    """``remat`` recomputes each layer in the backward pass instead of storing it: the same function and the same
+    gradient (to float rounding), for both entry points."""
+    graphdef, state, _ = _fresh(modules)
+    entry, noise_type = VARIANTS[variant]
+    x0 = batch["x0"]
+    k_t, k_noise = jax.random.split(jax.random.PRNGKey(5))
+    t = sample_timesteps(k_t, x0.shape[:3], noise_type)
+    noise = jax.random.normal(k_noise, x0.shape)
+    out = {}
+    for remat in (False, True):
+        grad_fn = jax.jit(jax.value_and_grad(make_loss_fn(graphdef, entry, remat=remat)))
+        out[remat] = grad_fn(state.params, state.rest, batch, t, noise)
+    assert float(out[True][0]) == pytest.approx(float(out[False][0]), rel=1e-6)
+    grads = [jax.tree.leaves(out[r][1]) for r in (False, True)]
+    assert len(grads[0]) == len(grads[1]) > 0
+    for a, b in zip(*grads):
+        np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=1e-4, atol=1e-6)
+    assert max(float(jnp.abs(g).max()) for g in grads[1]) > 0  # the gradient is not trivially zero
+
+
 def test_same_seed_same_losses(modules, batch, steps):
     _, train_step = steps["causal"]
     _, losses_a = _run(modules, train_step, batch, 3, seed=7)
