@@ -112,6 +112,15 @@ def cmd_with_vae(args) -> int:
     return 0
 
 
+def cmd_decoder_context(args) -> int:
+    from training.decoder_context import with_decoder_context
+    dest, fit = with_decoder_context(args.model, args.out, args.context, args.data, args.clips, seed=args.seed)
+    print(f"decoder fitted on {fit['patches']} patches: mean squared error {fit['mse_before']:.5f} -> "
+          f"{fit['mse_after']:.5f}")
+    print(f"wrote {dest}")
+    return 0
+
+
 def cmd_action_conditioning(args) -> int:
     from training.surgery import with_action_conditioning
     dest = with_action_conditioning(args.model, args.out, args.mouse_gain, camera_warp=args.camera_warp,
@@ -200,6 +209,15 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the new model directory; RUN/mp-bidirectional/model lets `solaris-train mp-causal --out RUN` "
                         "start from it")
     v.set_defaults(func=cmd_with_vae)
+    c = sub.add_parser("decoder-context", help="a linear patch codec's decoder refitted to read a k x k neighbourhood "
+                                               "of latents (the encoder, the latent space and the DiT kept)")
+    c.add_argument("model", help="a model/ directory, or 'default' (the shipped model)")
+    c.add_argument("--context", type=int, required=True, help="k, odd >= 1 (1: one latent position)")
+    c.add_argument("--data", required=True, help="a collect output; the fit reads clips of its training split")
+    c.add_argument("--clips", type=int, default=2048, help="single-player clips of 25 frames to fit on")
+    c.add_argument("--seed", type=int, default=0, help="which clips")
+    c.add_argument("--out", required=True, help="the new model directory")
+    c.set_defaults(func=cmd_decoder_context)
     g = sub.add_parser("action-conditioning", help="a model under another action conditioning, computing the "
                                                    "same function (then fine-tune it)")
     g.add_argument("model", help="a model/ directory")

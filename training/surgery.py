@@ -1,6 +1,6 @@
 """Model surgery: functions that change a trained model's layout or weights without training it
 (docs/training.md, "Modules"). Each writes a new model directory (``checkpoint.save``) or returns a
-rebuilt module; none draws data or takes an optimiser step.
+rebuilt module; none draws data or takes an optimiser step (``training.decoder_context`` fits a decoder to data).
 
 * ``relayout_decoder``: a VAE rebuilt in another decoder layout, warm-started (the ``vae-decoder`` stage);
 * ``with_decoder``: a model given the decoder of a ``vae-decoder`` stage of the same latent space

@@ -35,7 +35,7 @@ import numpy as np
 import optax
 from flax import nnx
 
-from solaris_env.world_model.vae import CausalVideoVAE, kl_divergence, patchify, sample_posterior
+from solaris_env.world_model.vae import CausalVideoVAE, kl_divergence, latent_neighbourhood, patchify, sample_posterior
 from solaris_env.world_model.world_model import frames_to_model
 from training.step import TrainState, make_optimizer
 
@@ -85,10 +85,55 @@ def fit_linear_patch_codec(vae: CausalVideoVAE, clips_uint8) -> dict:
     dtype = vae.patch_in.kernel[...].dtype
     vae.patch_in.kernel[...] = jnp.asarray(eigvec, dtype)
     vae.patch_in.bias[...] = jnp.asarray(-mean @ eigvec, dtype)
-    vae.patch_out.kernel[...] = jnp.asarray(eigvec.T, dtype)
+    # the decoder reads the centre position only (the other taps of a decoder_context > 1 at zero), until
+    # fit_patch_decoder fits them
+    centre = (cfg.decoder_context ** 2 // 2) * z
+    out = np.zeros((cfg.decoder_context ** 2 * z, d))
+    out[centre:centre + z] = eigvec.T
+    vae.patch_out.kernel[...] = jnp.asarray(out, dtype)
     vae.patch_out.bias[...] = jnp.asarray(mean, dtype)
     return {"patches": int(n), "variance_kept": float(eigval[:z].sum() / eigval.sum()),
             "component_std": [round(float(v), 4) for v in np.sqrt(np.maximum(eigval[:z], 0.0))]}
+
+
+PATCH_DECODER_RIDGE = 1e-3  # x the mean diagonal of the normal equations: keeps the solve well posed
+
+
+def fit_patch_decoder(vae: CausalVideoVAE, clips_uint8) -> dict:
+    """Fit a linear patch codec's decoder (``patch_out``) to clips in closed form, its encoder (the latent space)
+    kept: the least-squares map from each latent position's ``decoder_context`` x ``decoder_context``
+    neighbourhood of raw latents (``vae.latent_neighbourhood``) to its (tf, sf, sf, 3) pixel patch, with a
+    small ridge (``PATCH_DECODER_RIDGE``). With a context of 1 it is the principal-component decoder again (up
+    to the ridge); wider, the neighbours estimate what the components leave out (docs/model.md §7.1).
+    ``clips_uint8``: an iterable of (B, T, H, W, 3) uint8 stream starts (T = 1 + tf * n). -> the fit's facts:
+    patches, and the mean squared error per patch entry of the decoder before and after, on those clips."""
+    cfg = vae.cfg
+    if cfg.codec != "linear_patch":
+        raise ValueError(f"fit_patch_decoder: the VAE's codec is {cfg.codec!r}, expected 'linear_patch'")
+    tf, sf, k = cfg.temporal_factor, cfg.spatial_factor, cfg.decoder_context
+    d, f = tf * sf * sf * 3, k * k * cfg.z_dim + 1
+    xtx, xty, yty, n = np.zeros((f, f)), np.zeros((f, d)), 0.0, 0
+    old = np.concatenate([np.asarray(vae.patch_out.kernel[...], np.float64),
+                          np.asarray(vae.patch_out.bias[...], np.float64)[None]])
+    for clip in clips_uint8:
+        video = frames_to_model(jnp.asarray(clip))
+        y = np.asarray(patchify(video, tf, sf, True), np.float64).reshape(-1, d)
+        mu = vae.encode_moments(video)[0]
+        x = np.asarray(latent_neighbourhood(mu, k), np.float64).reshape(len(y), -1)
+        x = np.concatenate([x, np.ones((len(x), 1))], axis=1)
+        xtx += x.T @ x
+        xty += x.T @ y
+        yty += float(np.sum(y * y))
+        n += len(y)
+    if n <= f:
+        raise ValueError(f"fit_patch_decoder: {n} patches for a {f}-input fit; give more clips")
+    ridge = PATCH_DECODER_RIDGE * np.trace(xtx) / f
+    w = np.linalg.solve(xtx + ridge * np.eye(f), xty)
+    mse = lambda m: float((yty - 2.0 * np.sum(m * xty) + np.sum(m * (xtx @ m))) / (n * d))
+    dtype = vae.patch_out.kernel[...].dtype
+    vae.patch_out.kernel[...] = jnp.asarray(w[:-1], dtype)
+    vae.patch_out.bias[...] = jnp.asarray(w[-1], dtype)
+    return {"patches": int(n), "decoder_context": k, "mse_before": mse(old), "mse_after": mse(w)}
 
 
 def make_vae_train_step(graphdef: nnx.GraphDef, tx: optax.GradientTransformation, weights: VAELossWeights):

@@ -186,6 +186,11 @@ class VAEConfig:
     # the patches' principal components by the VAE stage (docs/model.md §7.1, "Linear patch codec"); the
     # factors still come from dim_mult / temporal_downsample, the other layout fields are unused.
     codec: str = "wan"
+    # "linear_patch" only: the decoder reads a (k x k) neighbourhood of latent positions (the grid's edge
+    # repeated) instead of the position alone, so the block edges and the texture that the principal components
+    # leave out are estimated from the neighbours; 1 = one position (the principal-component decoder). The
+    # encoder, and so the latent space, does not depend on it (docs/model.md §7.1, "Linear patch codec").
+    decoder_context: int = 1
     # Per-channel latent normalisation z = (mu - mean) / std; empty = identity (set after training).
     latent_mean: tuple[float, ...] = ()
     latent_std: tuple[float, ...] = ()
@@ -199,6 +204,12 @@ class VAEConfig:
         _require(len(self.latent_mean) in (0, self.z_dim) and len(self.latent_std) == len(self.latent_mean),
                  f"latent_mean/std must both be empty or have z_dim={self.z_dim} entries")
         _require(self.codec in VAE_CODECS, f"codec must be one of {VAE_CODECS}, got {self.codec!r}")
+        k = self.decoder_context
+        _require(isinstance(k, int) and k >= 1 and k % 2 == 1,
+                 f"decoder_context must be an odd int >= 1, got {k!r}")
+        _require(k == 1 or self.codec == "linear_patch",
+                 f"decoder_context={k} needs codec 'linear_patch' (the 'wan' decoder is convolutional), "
+                 f"got codec {self.codec!r}")
         _require(self.cond_encoding in COND_ENCODINGS,
                  f"cond_encoding must be one of {COND_ENCODINGS}, got {self.cond_encoding!r}")
         _require(self.decoder_base_dim >= 0, f"decoder_base_dim must be >= 0 (0 = base_dim), got {self.decoder_base_dim}")

@@ -102,6 +102,18 @@ def patchify(video_BTHWC: jax.Array, tf: int, sf: int, first: bool) -> jax.Array
     return x.reshape(B, F, H // sf, W // sf, tf * sf * sf * C)
 
 
+def latent_neighbourhood(z_BFhwC: jax.Array, k: int) -> jax.Array:
+    """Each latent position's (k x k) neighbourhood, the grid's edge repeated past its border, flattened:
+    (B, F, h, w, k*k*C), entry order (dy, dx, channel) row-major over the window, so the centre position's C
+    channels are entries [(k*k // 2) * C, (k*k // 2 + 1) * C). k = 1 returns ``z_BFhwC`` itself."""
+    if k == 1:
+        return z_BFhwC
+    r = k // 2
+    h, w = z_BFhwC.shape[2:4]
+    padded = jnp.pad(z_BFhwC, ((0, 0), (0, 0), (r, r), (r, r), (0, 0)), mode="edge")
+    return jnp.concatenate([padded[:, :, dy:dy + h, dx:dx + w] for dy in range(k) for dx in range(k)], axis=-1)
+
+
 def unpatchify(patches_BFhwD: jax.Array, tf: int, sf: int, first: bool) -> jax.Array:
     """The inverse of ``patchify``: (B, F, h, w, tf*sf*sf*3) -> video (B, T, h*sf, w*sf, 3). ``first``: the
     first latent gives one frame, the mean of its patch's tf frames (T = 1 + tf * (F - 1))."""
@@ -374,10 +386,11 @@ class CausalVideoVAE(nnx.Module):
         kw = dict(dtype=jnp.dtype(cfg.dtype), param_dtype=jnp.dtype(cfg.param_dtype), rngs=rngs)
         self.cfg = cfg
         if cfg.codec == "linear_patch":
-            # patch <-> latent, one matrix each way (training.vae.fit_linear_patch_codec sets them)
+            # patch <-> latent, one matrix each way (training.vae.fit_linear_patch_codec sets them); the decoder's
+            # reads the decoder_context**2 latent positions around each one (latent_neighbourhood)
             d = cfg.temporal_factor * cfg.spatial_factor ** 2 * 3
             self.patch_in = nnx.Linear(d, cfg.z_dim, **kw)
-            self.patch_out = nnx.Linear(cfg.z_dim, d, **kw)
+            self.patch_out = nnx.Linear(cfg.decoder_context ** 2 * cfg.z_dim, d, **kw)
             return
         self.encoder = Encoder(cfg, rngs=rngs)
         self.conv1 = CausalConv3d(2 * cfg.z_dim, 2 * cfg.z_dim, (1, 1, 1), **kw)  # moments (mu, logvar)
@@ -435,7 +448,7 @@ class CausalVideoVAE(nnx.Module):
     # -- decoding ----------------------------------------------------------------------------------
     def _decode_raw(self, latent_BFhwc: jax.Array, cache: Cache) -> tuple[jax.Array, Cache]:
         if self.cfg.codec == "linear_patch":
-            patches = self.patch_out(latent_BFhwc)
+            patches = self.patch_out(latent_neighbourhood(latent_BFhwc, self.cfg.decoder_context))
             return unpatchify(patches, self.cfg.temporal_factor, self.cfg.spatial_factor, first=cache is None), ()
         x, _ = self.conv2(latent_BFhwc, None)
         return self.decoder(x, cache)

@@ -5,6 +5,8 @@ import dataclasses
 
 import jax
 import numpy as np
+import pytest
+from flax import nnx
 
 from solaris_env.world_model.config import preset
 from solaris_env.world_model.world_model import WorldModel
@@ -70,3 +72,35 @@ def test_with_vae_takes_the_whole_vae_and_keeps_the_dit_and_image_encoder(tmp_pa
     with pytest.raises(SystemExit, match="the DiT needs the same latent shape"):
         cli.main(["with-vae", str(tmp_path / "model"), "--vae-from", str(tmp_path / "z8"),
                   "--out", str(tmp_path / "x")])
+
+
+def test_decoder_context_refits_the_decoder_and_keeps_everything_else(tmp_path, tiny_duet):
+    """`solaris-train decoder-context`: the linear patch codec's decoder reads 3x3 latent positions, fitted to the
+    data; the encoder, the latent statistics, the DiT and the image encoder are the source's bit for bit, and
+    on the data's clips it reconstructs no worse than the source's one-position decoder."""
+    from training.vae import fit_linear_patch_codec
+
+    cfg = preset("test")
+    cfg = cfg.replace(vae=dataclasses.replace(cfg.vae, codec="linear_patch"))
+    src = WorldModel.from_config(cfg, seed=0)
+    dit, vae, encoder = src.modules()
+    rng = np.random.default_rng(0)
+    fit_linear_patch_codec(vae, [rng.integers(0, 256, (64, 9, 32, 32, 3), dtype=np.uint8)])
+    WorldModel(cfg, dit, vae, encoder).save(tmp_path / "src")
+    assert cli.main(["decoder-context", str(tmp_path / "src"), "--context", "3", "--data", str(tiny_duet),
+                     "--clips", "16", "--out", str(tmp_path / "dst")]) == 0
+    a, b = WorldModel.load(tmp_path / "src"), WorldModel.load(tmp_path / "dst")
+    assert b.config.vae.decoder_context == 3 and b.config.replace(vae=a.config.vae) == a.config
+    (dit_a, vae_a, enc_a), (dit_b, vae_b, enc_b) = a.modules(), b.modules()
+    for x, y in ((dit_a, dit_b), (enc_a, enc_b)):
+        for u, v in zip(jax.tree.leaves(nnx.state(x)), jax.tree.leaves(nnx.state(y))):
+            np.testing.assert_array_equal(np.asarray(u), np.asarray(v))
+    np.testing.assert_array_equal(vae_a.patch_in.kernel[...], vae_b.patch_in.kernel[...])
+    assert vae_b.patch_out.kernel[...].shape[0] == 9 * cfg.vae.z_dim
+
+    from training.decoder_context import with_decoder_context
+    _, fit = with_decoder_context(tmp_path / "src", tmp_path / "dst2", 3, tiny_duet, clips=16)
+    assert fit["mse_after"] <= fit["mse_before"]
+    with pytest.raises(ValueError, match="decoder-context needs 'linear_patch'"):
+        WorldModel.from_preset("test", seed=0).save(tmp_path / "wan")
+        with_decoder_context(tmp_path / "wan", tmp_path / "dst3", 3, tiny_duet, clips=16)

@@ -10,9 +10,9 @@ import pytest
 from flax import nnx
 
 from solaris_env.world_model.config import VAEConfig, WorldModelConfig
-from solaris_env.world_model.vae import CausalVideoVAE, patchify, unpatchify
+from solaris_env.world_model.vae import CausalVideoVAE, latent_neighbourhood, patchify, unpatchify
 from solaris_env.world_model.world_model import encoder_receptive_field, steady_cond_index
-from training.vae import fit_linear_patch_codec
+from training.vae import fit_linear_patch_codec, fit_patch_decoder
 
 CFG = dataclasses.replace(WorldModelConfig.test().vae, codec="linear_patch")  # 32x32 -> 4x4x4, x8 space, x4 time
 TF, SF = CFG.temporal_factor, CFG.spatial_factor
@@ -134,3 +134,91 @@ def test_fit_needs_the_codec_and_enough_patches():
         fit_linear_patch_codec(CausalVideoVAE(WorldModelConfig.test().vae, rngs=rngs()), [])
     with pytest.raises(ValueError, match="more clips"):
         fit_linear_patch_codec(CausalVideoVAE(FIT, rngs=rngs()), [np.zeros((1, 5, 4, 4, 3), np.uint8)])
+
+
+# ---------------------------------------------------------------------------------------------
+# The decoder's neighbourhood (VAEConfig.decoder_context)
+# ---------------------------------------------------------------------------------------------
+
+
+def test_latent_neighbourhood_layout_and_edge():
+    z = jnp.arange(1 * 1 * 3 * 4 * 2, dtype=jnp.float32).reshape(1, 1, 3, 4, 2)
+    assert latent_neighbourhood(z, 1) is z
+    n = latent_neighbourhood(z, 3)
+    assert n.shape == (1, 1, 3, 4, 9 * 2)
+    # entry ((dy * 3 + dx) * C + c) of position (i, j) is z[clip(i + dy - 1), clip(j + dx - 1), c]
+    for i, j, dy, dx, c in [(0, 0, 0, 0, 0), (1, 2, 1, 1, 1), (2, 3, 2, 2, 0), (0, 3, 0, 2, 1), (2, 0, 2, 0, 1)]:
+        src = z[0, 0, min(max(i + dy - 1, 0), 2), min(max(j + dx - 1, 0), 3), c]
+        assert n[0, 0, i, j, (dy * 3 + dx) * 2 + c] == src
+    np.testing.assert_array_equal(n[..., 4 * 2:5 * 2], z)  # the centre tap is the position itself
+
+
+def test_decoder_context_config_is_checked():
+    assert dataclasses.replace(CFG, decoder_context=3).decoder_context == 3
+    for bad in (0, 2, -1):
+        with pytest.raises(ValueError, match="decoder_context must be an odd int >= 1"):
+            dataclasses.replace(CFG, decoder_context=bad)
+    with pytest.raises(ValueError, match="needs codec 'linear_patch'"):
+        dataclasses.replace(WorldModelConfig.test().vae, decoder_context=3)
+
+
+def test_a_wider_decoder_reads_the_neighbours_and_streams_like_cacheless(video):
+    """decoder_context 3: patch_out reads 9 positions; the encoder (the latent space) is unchanged, decoding
+    step by step still equals decoding the whole clip, and a decoder whose only non-zero tap is the centre one
+    decodes exactly as the one-position decoder."""
+    cfg3 = dataclasses.replace(CFG, decoder_context=3)
+    one, three = CausalVideoVAE(CFG, rngs=rngs()), CausalVideoVAE(cfg3, rngs=rngs())
+    assert three.patch_out.kernel[...].shape == (9 * CFG.z_dim, one.patch_out.kernel[...].shape[1])
+    assert three.patch_in.kernel[...].shape == one.patch_in.kernel[...].shape
+    three.patch_in.kernel[...], three.patch_in.bias[...] = one.patch_in.kernel[...], one.patch_in.bias[...]
+    centre = np.zeros(three.patch_out.kernel[...].shape, np.float32)
+    centre[4 * CFG.z_dim:5 * CFG.z_dim] = one.patch_out.kernel[...]
+    three.patch_out.kernel[...], three.patch_out.bias[...] = jnp.asarray(centre), one.patch_out.bias[...]
+    mu = one.encode(video)
+    np.testing.assert_array_equal(three.encode(video), mu)
+    np.testing.assert_allclose(three.decode(mu), one.decode(mu), atol=1e-5)
+    three.patch_out.kernel[...] = jax.random.normal(jax.random.key(3), centre.shape) * 0.05
+    full = three.decode(mu)
+    parts, cache = [], None
+    for f in range(mu.shape[1]):
+        out, cache = three.decode_step(mu[:, f:f + 1], cache)
+        parts.append(out)
+    np.testing.assert_allclose(jnp.concatenate(parts, 1), full, rtol=1e-5, atol=1e-5)
+    assert float(jnp.max(jnp.abs(full - one.decode(mu)))) > 1e-3  # the neighbours do count
+
+
+def smooth_clips(rng, n: int) -> np.ndarray:
+    """uint8 (n, 5, 8, 8, 3) still clips of smooth colour ramps: neighbouring patches predict each other."""
+    yy, xx = np.meshgrid(np.linspace(-1, 1, 8), np.linspace(-1, 1, 8), indexing="ij")
+    a = rng.normal(size=(n, 1, 1, 3, 3)) * 0.4
+    frames = a[..., 0] + a[..., 1] * yy[None, :, :, None] + a[..., 2] * (xx * yy)[None, :, :, None]
+    frames = np.clip(np.round((frames + 1) * 127.5), 0, 255).astype(np.uint8)
+    return np.repeat(frames[:, None], 5, axis=1)
+
+
+def test_fit_patch_decoder_lowers_the_error_of_the_components():
+    """After the principal-component fit of a 2-channel codec, refitting a 3x3 decoder for the same encoder
+    lowers the reconstruction error on the clips (least squares over a superset of the one-position decoder),
+    never moves the encoder, and one position (context 1) gives the principal-component decoder back."""
+    rng = np.random.default_rng(1)
+    clips = smooth_clips(rng, 24)
+    cfg3 = dataclasses.replace(FIT, z_dim=2, decoder_context=3)
+    vae = CausalVideoVAE(cfg3, rngs=rngs())
+    fit_linear_patch_codec(vae, [clips])
+    encoder = np.asarray(vae.patch_in.kernel[...]).copy()
+    x = jnp.asarray(clips, jnp.float32) / 127.5 - 1
+    err = lambda v: float(jnp.mean(jnp.square(v.decode_raw(v.encode_moments(x)[0]) - x)))
+    before = err(vae)
+    fit = fit_patch_decoder(vae, [clips[:12], clips[12:]])
+    assert fit["patches"] == 24 * 3 * 16 and fit["decoder_context"] == 3  # 3 latents of 4 x 4 positions
+    assert fit["mse_after"] < 0.9 * fit["mse_before"]  # measured: 0.85
+    assert err(vae) < 0.9 * before
+    np.testing.assert_array_equal(vae.patch_in.kernel[...], encoder)
+    one = CausalVideoVAE(dataclasses.replace(cfg3, decoder_context=1), rngs=rngs())
+    fit_linear_patch_codec(one, [clips])
+    pca = err(one)
+    assert before == pytest.approx(pca, rel=1e-4)  # the components' fit leaves a wider decoder on its centre tap
+    refit = fit_patch_decoder(one, [clips])
+    assert refit["mse_after"] == pytest.approx(refit["mse_before"], rel=0.02) and err(one) == pytest.approx(pca, rel=0.02)
+    with pytest.raises(ValueError, match="expected 'linear_patch'"):
+        fit_patch_decoder(CausalVideoVAE(WorldModelConfig.test().vae, rngs=rngs()), [clips])
