@@ -17,7 +17,7 @@ from solaris_env.world_model.vae import CausalVideoVAE
 from solaris_env.world_model.world_model import WorldModel
 from training.surgery import model_directory
 from training.train import duet_stream, next_batch
-from training.vae import fit_patch_decoder
+from training.vae import fit_patch_decoder, relayout_patch_decoder
 
 
 def with_decoder_context(model: str | Path, dest: str | Path, context: int, data_dir: str | Path,
@@ -36,14 +36,9 @@ def with_decoder_context(model: str | Path, dest: str | Path, context: int, data
     fresh = CausalVideoVAE(vae_cfg, rngs=nnx.Rngs(seed))
     fresh.patch_in.kernel[...] = vae.patch_in.kernel[...]
     fresh.patch_in.bias[...] = vae.patch_in.bias[...]
-    # start from the model's own decoder (one latent position) at the centre tap, so the fit's "before" is it
-    z, k_old = cfg.vae.z_dim, cfg.vae.decoder_context
-    old = np.asarray(vae.patch_out.kernel[...]).reshape(k_old, k_old, z, -1)
-    kernel = np.zeros((context, context, z, old.shape[-1]), old.dtype)
-    r = min(context, k_old) // 2
-    kernel[context // 2 - r:context // 2 + r + 1, context // 2 - r:context // 2 + r + 1] = \
-        old[k_old // 2 - r:k_old // 2 + r + 1, k_old // 2 - r:k_old // 2 + r + 1]
-    fresh.patch_out.kernel[...] = kernel.reshape(context * context * z, -1)
+    # start from the model's own decoder re-laid for the new window, so the fit's "before" is that decoder
+    fresh.patch_out.kernel[...] = relayout_patch_decoder(vae.patch_out.kernel[...], cfg.vae.z_dim,
+                                                         cfg.vae.decoder_context, context)
     fresh.patch_out.bias[...] = vae.patch_out.bias[...]
     dataset, sampler = duet_stream(Path(data_dir), cfg, num_frames, seed)
     per_draw = 8

@@ -87,13 +87,22 @@ def fit_linear_patch_codec(vae: CausalVideoVAE, clips_uint8) -> dict:
     vae.patch_in.bias[...] = jnp.asarray(-mean @ eigvec, dtype)
     # the decoder reads the centre position only (the other taps of a decoder_context > 1 at zero), until
     # fit_patch_decoder fits them
-    centre = (cfg.decoder_context ** 2 // 2) * z
-    out = np.zeros((cfg.decoder_context ** 2 * z, d))
-    out[centre:centre + z] = eigvec.T
-    vae.patch_out.kernel[...] = jnp.asarray(out, dtype)
+    vae.patch_out.kernel[...] = jnp.asarray(relayout_patch_decoder(eigvec.T, z, 1, cfg.decoder_context), dtype)
     vae.patch_out.bias[...] = jnp.asarray(mean, dtype)
     return {"patches": int(n), "variance_kept": float(eigval[:z].sum() / eigval.sum()),
             "component_std": [round(float(v), 4) for v in np.sqrt(np.maximum(eigval[:z], 0.0))]}
+
+
+def relayout_patch_decoder(kernel: np.ndarray, z_dim: int, k_from: int, k_to: int) -> np.ndarray:
+    """A linear patch decoder's kernel ((k_from² · z_dim, D), rows as ``vae.latent_neighbourhood`` orders them)
+    re-laid for a (k_to x k_to) neighbourhood: the taps both windows share, centred, are kept, new taps are zero,
+    so a wider decoder decodes exactly as the narrower one."""
+    old = np.asarray(kernel).reshape(k_from, k_from, z_dim, -1)
+    out = np.zeros((k_to, k_to, z_dim, old.shape[-1]), old.dtype)
+    r = min(k_from, k_to) // 2
+    out[k_to // 2 - r:k_to // 2 + r + 1, k_to // 2 - r:k_to // 2 + r + 1] = \
+        old[k_from // 2 - r:k_from // 2 + r + 1, k_from // 2 - r:k_from // 2 + r + 1]
+    return out.reshape(k_to * k_to * z_dim, -1)
 
 
 PATCH_DECODER_RIDGE = 1e-7  # x the mean diagonal of the normal equations: keeps the solve well posed (1e-3 shrank

@@ -222,3 +222,19 @@ def test_fit_patch_decoder_lowers_the_error_of_the_components():
     assert refit["mse_after"] == pytest.approx(refit["mse_before"], rel=0.02) and err(one) == pytest.approx(pca, rel=0.02)
     with pytest.raises(ValueError, match="expected 'linear_patch'"):
         fit_patch_decoder(CausalVideoVAE(WorldModelConfig.test().vae, rngs=rngs()), [clips])
+
+
+def test_relayout_patch_decoder_keeps_the_shared_taps():
+    """Widening a decoder puts its taps at the centre of the new window (new taps zero); narrowing keeps the
+    centre taps; widening then narrowing gives the kernel back."""
+    from training.vae import relayout_patch_decoder
+
+    rng = np.random.default_rng(0)
+    one = rng.normal(size=(4, 6))
+    three = relayout_patch_decoder(one, 4, 1, 3)
+    assert three.shape == (36, 6)
+    np.testing.assert_array_equal(three[16:20], one)
+    assert not np.any(np.delete(three, np.s_[16:20], axis=0))
+    wide = rng.normal(size=(36, 6))
+    np.testing.assert_array_equal(relayout_patch_decoder(relayout_patch_decoder(wide, 4, 3, 5), 4, 5, 3), wide)
+    np.testing.assert_array_equal(relayout_patch_decoder(three, 4, 3, 1), one)
