@@ -353,6 +353,25 @@ def agreement(answers: Sequence[str], truth: Sequence[str | None], scope: np.nda
     return hits, n
 
 
+def class_agreement(answers: Sequence[str], truth: Sequence[str | None], scope: np.ndarray) -> dict[str, list[int]]:
+    """Per truth class, [matches, counted] of judge answers inside ``scope`` (ambiguous truths skipped)."""
+    out: dict[str, list[int]] = {}
+    for a, t, s in zip(answers, truth, scope):
+        if s and t is not None:
+            counts = out.setdefault(t, [0, 0])
+            counts[0] += a == t
+            counts[1] += 1
+    return out
+
+
+def balanced_agreement(per_class: dict[str, list[int]]) -> float:
+    """The mean over the truth classes present of each class's agreement: a judge that gives one answer to every
+    frame scores 1 / (number of classes), whatever the classes' shares (the judges answer "yes, centre" to noise;
+    docs/evaluation.md). NaN when nothing was counted."""
+    rates = [h / n for h, n in per_class.values() if n]
+    return float(np.mean(rates)) if rates else float("nan")
+
+
 # =============================================================================================
 # Action programs
 # =============================================================================================
@@ -1002,6 +1021,7 @@ def summarize(parts: Sequence[tuple[Scored, np.ndarray]]) -> dict:
                                                            np.nanmean(md[valid], axis=0))}
     for q, truth, attr in (("visible", "vis_truth", "vis"), ("position", "pos_truth", "pos")):
         hits = {"dream": [0, 0], "engine": [0, 0]}
+        classes: dict[str, dict[str, list[int]]] = {"dream": {}, "engine": {}}
         for s, m in parts:
             scope = s.partner_scope & m
             for src in ("dream", "engine"):
@@ -1010,9 +1030,16 @@ def summarize(parts: Sequence[tuple[Scored, np.ndarray]]) -> dict:
                     h, n = agreement(answers, getattr(s, truth), scope)
                     hits[src][0] += h
                     hits[src][1] += n
+                    for c, (ch, cn) in class_agreement(answers, getattr(s, truth), scope).items():
+                        counts = classes[src].setdefault(c, [0, 0])
+                        counts[0] += ch
+                        counts[1] += cn
         out[f"{q}_agreement_dream"] = _r(ratio(*hits["dream"]))
         out[f"{q}_agreement_engine"] = _r(ratio(*hits["engine"]))
+        out[f"{q}_balanced_dream"] = _r(balanced_agreement(classes["dream"]))
+        out[f"{q}_balanced_engine"] = _r(balanced_agreement(classes["engine"]))
         out[f"{q}_counted_steps"] = hits["engine"][1]
+        out[f"{q}_truth_classes"] = {c: n for c, (_, n) in sorted(classes["engine"].items())}
     if parts and parts[0][0].feat_e is not None:
         fe, fd = cat(lambda s: s.feat_e), cat(lambda s: s.feat_d)
         out["frechet"] = _r(frechet_distance(fd, fe), 2) if len(fe) >= 16 else None
@@ -1318,6 +1345,9 @@ def run(model_specs: Sequence[str], program_names: Sequence[str], setup: Setup, 
                 "psnr_db": "dream vs engine frame, RGB, mean over steps (capped at 99)",
                 "visible_/position_agreement": "judge answer == engine ground truth, on partner programs and "
                                                "wherever the engine shows the partner (ambiguous truths skipped)",
+                "visible_/position_balanced": "the same per truth class, averaged over the classes: one answer "
+                                              "to every frame scores 1 / classes (the judges answer 'yes, center' "
+                                              "to noise)",
                 "frechet": "Fréchet distance, dream vs engine frames, judge features (>= 16 frames)",
             },
             "direction_estimator": {
@@ -1363,7 +1393,7 @@ def print_tables(result: dict) -> None:
                   f"{_fmt(a.get('visible_agreement_engine'))} {_fmt(a.get('position_agreement_dream'))} "
                   f"{_fmt(a.get('position_agreement_engine'))} {_fmt(a.get('frechet'), 1)}")
         print(f"{'surface':16s} {'vc':>6s} {'within':>6s} {'dir':>6s} frozen  drift  sharp   PSNR  vis_d  vis_e  pos_d  "
-              "pos_e     FD  steps")
+              "pos_e     FD  steps  visB_d  posB_d  (B: balanced over truth classes)")
         rows = list(res["surfaces"].items()) + list(res["partner_at_start"].items()) + [("overall", res["overall"])]
         for surf, a in rows:
             print(f"{surf:16s} {_fmt(a['view_change_ratio'])} {_fmt(a.get('within_step_change_ratio'))} "
@@ -1372,7 +1402,8 @@ def print_tables(result: dict) -> None:
                   f"{_fmt(a['psnr_db'], 1)} "
                   f"{_fmt(a.get('visible_agreement_dream'))} {_fmt(a.get('visible_agreement_engine'))} "
                   f"{_fmt(a.get('position_agreement_dream'))} {_fmt(a.get('position_agreement_engine'))} "
-                  f"{_fmt(a.get('frechet'), 1)} {a['steps']:6d}")
+                  f"{_fmt(a.get('frechet'), 1)} {a['steps']:6d}  {_fmt(a.get('visible_balanced_dream'))}  "
+                  f"{_fmt(a.get('position_balanced_dream'))}")
     v = result["estimator_validation"]
     for key, row in v.items():
         print(f"direction estimator ({key}, engine frames): " + ", ".join(f"{k} {x}" for k, x in row.items()))

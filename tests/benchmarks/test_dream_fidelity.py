@@ -205,6 +205,23 @@ def test_partner_truth_follows_the_judges_labels():
     assert (hits, n) == (1, 2)
 
 
+def test_balanced_partner_agreement_gives_a_constant_answer_one_over_the_classes():
+    """The judges answer "yes" (and "center") to noise; on truths that are mostly "yes" plain agreement rewards
+    that, the balanced one scores it 1 / classes and a perfect judge 1."""
+    truth = ["yes"] * 9 + ["no"] * 3 + [None]
+    scope = np.ones(len(truth), bool)
+    always_yes = ["yes"] * len(truth)
+    hits, n = df.agreement(always_yes, truth, scope)
+    assert hits / n == pytest.approx(0.75)
+    per_class = df.class_agreement(always_yes, truth, scope)
+    assert per_class == {"yes": [9, 9], "no": [0, 3]}
+    assert df.balanced_agreement(per_class) == pytest.approx(0.5)
+    assert df.balanced_agreement(df.class_agreement(truth[:-1] + ["no"], truth, scope)) == pytest.approx(1.0)
+    assert np.isnan(df.balanced_agreement({}))
+    positions = ["left", "center", "right", "no player"] * 2
+    assert df.balanced_agreement(df.class_agreement(["center"] * 8, positions, np.ones(8, bool))) == 0.25
+
+
 # ---------------------------------------------------------------------------------------------
 # Programs and start states
 # ---------------------------------------------------------------------------------------------
