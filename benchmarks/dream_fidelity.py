@@ -345,12 +345,12 @@ def position_truth(pixels: int, u: float | None) -> str | None:
 
 def agreement(answers: Sequence[str], truth: Sequence[str | None], scope: np.ndarray) -> tuple[int, int]:
     """(matches, counted) of judge answers against truths inside ``scope``, skipping ambiguous truths (None)."""
-    n = hits = 0
-    for a, t, s in zip(answers, truth, scope):
-        if s and t is not None:
-            n += 1
-            hits += a == t
-    return hits, n
+    return pooled(class_agreement(answers, truth, scope))
+
+
+def pooled(per_class: dict[str, list[int]]) -> tuple[int, int]:
+    """(matches, counted) summed over the truth classes of ``class_agreement``."""
+    return sum(h for h, _ in per_class.values()), sum(n for _, n in per_class.values())
 
 
 def class_agreement(answers: Sequence[str], truth: Sequence[str | None], scope: np.ndarray) -> dict[str, list[int]]:
@@ -1020,25 +1020,21 @@ def summarize(parts: Sequence[tuple[Scored, np.ndarray]]) -> dict:
         out["motion_dream"] = {k: _r(v, 3) for k, v in zip(("yaw_deg", "pitch_deg", "log_zoom"),
                                                            np.nanmean(md[valid], axis=0))}
     for q, truth, attr in (("visible", "vis_truth", "vis"), ("position", "pos_truth", "pos")):
-        hits = {"dream": [0, 0], "engine": [0, 0]}
         classes: dict[str, dict[str, list[int]]] = {"dream": {}, "engine": {}}
         for s, m in parts:
             scope = s.partner_scope & m
             for src in ("dream", "engine"):
                 answers = getattr(s, f"{attr}_{src[0]}")
                 if answers and answers[0] is not None:
-                    h, n = agreement(answers, getattr(s, truth), scope)
-                    hits[src][0] += h
-                    hits[src][1] += n
                     for c, (ch, cn) in class_agreement(answers, getattr(s, truth), scope).items():
                         counts = classes[src].setdefault(c, [0, 0])
                         counts[0] += ch
                         counts[1] += cn
-        out[f"{q}_agreement_dream"] = _r(ratio(*hits["dream"]))
-        out[f"{q}_agreement_engine"] = _r(ratio(*hits["engine"]))
+        out[f"{q}_agreement_dream"] = _r(ratio(*pooled(classes["dream"])))
+        out[f"{q}_agreement_engine"] = _r(ratio(*pooled(classes["engine"])))
         out[f"{q}_balanced_dream"] = _r(balanced_agreement(classes["dream"]))
         out[f"{q}_balanced_engine"] = _r(balanced_agreement(classes["engine"]))
-        out[f"{q}_counted_steps"] = hits["engine"][1]
+        out[f"{q}_counted_steps"] = pooled(classes["engine"])[1]
         out[f"{q}_truth_classes"] = {c: n for c, (_, n) in sorted(classes["engine"].items())}
     if parts and parts[0][0].feat_e is not None:
         fe, fd = cat(lambda s: s.feat_e), cat(lambda s: s.feat_d)
