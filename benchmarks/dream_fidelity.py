@@ -791,6 +791,67 @@ def dream_rollout(env, rollout: Rollout, dream_seed: int = 0) -> tuple[np.ndarra
     return np.stack(frames), np.asarray(within, np.float32)
 
 
+DREAM_BATCH = 16  # worlds per batched dream call (``dream_rollouts``)
+
+
+def dream_batches(rollouts: Sequence[Rollout], batch: int = DREAM_BATCH) -> list[list[int]]:
+    """Indices of ``rollouts`` in batches that step together: rollouts of one length, in their order, split into
+    the fewest batches of at most ``batch``, as even as possible (so a length compiles one or two shapes)."""
+    if batch < 1:
+        raise ValueError(f"batch must be >= 1, got {batch}")
+    by_length: dict[int, list[int]] = {}
+    for i, r in enumerate(rollouts):
+        by_length.setdefault(len(r.actions), []).append(i)
+    out = []
+    for idx in by_length.values():
+        n = math.ceil(len(idx) / batch)
+        size = math.ceil(len(idx) / n)
+        out.extend(idx[j:j + size] for j in range(0, len(idx), size))
+    return out
+
+
+def dream_rollouts(env, rollouts: Sequence[Rollout], dream_seed: int = 0,
+                   batch: int = DREAM_BATCH) -> list[tuple[np.ndarray, np.ndarray]]:
+    """``dream_rollout`` of every rollout, stepped ``batch`` worlds at a time through ``env.model`` (a
+    ``DreamParallelEnv``): each world starts exactly as ``env.reset(seed=rollout.seed + dream_seed,
+    options={"engine_state": rollout.start})`` starts it (the same start frames and model seed, so the same
+    sampling noise) and gets the same per-tick actions (``dream_env.world_actions``); the worlds' states are
+    joined on the batch axis. Batched matmuls may round differently from B = 1, so frames can differ from
+    ``dream_rollout``'s by a grey level here and there (tests/benchmarks/test_dream_fidelity.py)."""
+    import jax
+    import jax.numpy as jnp
+
+    from solaris_env.dream_env import world_actions
+    from solaris_env.env_common import episode_rng
+
+    model, agents = env.model, env.possible_agents
+    learner, k = agents.index(LEARNER), model.frames_per_step
+    out: list = [None] * len(rollouts)
+    for idx in dream_batches(rollouts, batch):
+        states = []
+        for i in idx:  # DreamParallelEnv.reset, world by world
+            rng = episode_rng(None, rollouts[i].seed + dream_seed)
+            first_PHW3, _ = env.start_frames.from_options({"engine_state": rollouts[i].start})
+            states.append(model.init(first_PHW3[None], int(rng.integers(2**31 - 1))))
+        state = jax.tree.map(lambda *leaves: jnp.concatenate(leaves, axis=0), *states)
+        frames = [[np.array(state.frame0_BPHW3[j, learner])] for j in range(len(idx))]
+        withins: list[list[float]] = [[] for _ in idx]
+        pending = [np.zeros((len(agents), 2)) for _ in idx]
+        for t in range(len(rollouts[idx[0]].actions)):
+            ticks = []
+            for j, i in enumerate(idx):
+                ticks_Pk25, _, pending[j] = world_actions(rollouts[i].actions[t], agents, agents, k, pending[j])
+                ticks.append(ticks_Pk25)
+            step_BPkHW3, state = model.step(state, np.stack(ticks))
+            step_BPkHW3 = np.asarray(step_BPkHW3)
+            for j in range(len(idx)):
+                frames[j].append(step_BPkHW3[j, learner, -1])
+                withins[j].append(within_step_change(step_BPkHW3[j, learner]))
+        for j, i in enumerate(idx):
+            out[i] = (np.stack(frames[j]), np.asarray(withins[j], np.float32))
+    return out
+
+
 # =============================================================================================
 # Models
 # =============================================================================================
@@ -1292,12 +1353,12 @@ def run(model_specs: Sequence[str], program_names: Sequence[str], setup: Setup, 
     results, shown = {}, {id(r): {} for r in showcase(rollouts)}
     for label, model in models.items():
         t0 = time.perf_counter()
-        denv = None if isinstance(model, WarpFormula) else DreamParallelEnv(model=model, max_steps=10**6)
-        dreams, withins = [], []
-        for r in rollouts:
-            frames, within = (model.rollout(r), None) if denv is None else dream_rollout(denv, r, setup.dream_seed)
-            dreams.append(frames)
-            withins.append(within)
+        if isinstance(model, WarpFormula):
+            dreams, withins = [model.rollout(r) for r in rollouts], [None] * len(rollouts)
+        else:
+            denv = DreamParallelEnv(model=model, max_steps=10**6)
+            dreams, withins = map(list, zip(*dream_rollouts(denv, rollouts, setup.dream_seed)))
+        for r, frames in zip(rollouts, dreams):
             if id(r) in shown:
                 shown[id(r)][label] = frames
         dream_s = time.perf_counter() - t0

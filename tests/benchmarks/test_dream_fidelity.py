@@ -414,6 +414,50 @@ def test_dream_seed_moves_only_the_dream_reset_seed():
         df.main(["--dream-seed", "-1"])
 
 
+def _rollout_of(steps: int, seed: int, start: str = "START") -> "df.Rollout":
+    return df.Rollout("p", "learner", 0, start, "grass", True, seed, [None] * steps, np.zeros((steps + 1, 2, 2, 3)),
+                      np.zeros(steps + 1), [None] * (steps + 1), np.zeros((steps + 1, 2)))
+
+
+def test_dream_batches_group_rollouts_by_length_in_even_batches():
+    rollouts = [_rollout_of(n, i) for i, n in enumerate([64] * 7 + [256, 64, 256, 64])]
+    assert df.dream_batches(rollouts, 4) == [[0, 1, 2], [3, 4, 5], [6, 8, 10], [7, 9]]  # 9 of 64: 3 + 3 + 3
+    assert df.dream_batches(rollouts, 16) == [[0, 1, 2, 3, 4, 5, 6, 8, 10], [7, 9]]
+    assert df.dream_batches(rollouts, 1) == [[i] for i in (0, 1, 2, 3, 4, 5, 6, 8, 10, 7, 9)]
+    assert df.dream_batches([], 4) == []
+    with pytest.raises(ValueError, match="batch"):
+        df.dream_batches(rollouts, 0)
+
+
+def test_batched_dream_rollouts_equal_one_world_at_a_time():
+    """``dream_rollouts`` (worlds joined on the batch axis) gives each rollout the frames and within-step changes
+    of ``dream_rollout`` (one ``DreamParallelEnv`` reset and step at a time): the same start, model seed, noise
+    and per-tick actions (turns carried between steps), rollouts of two lengths."""
+    from solaris_env.dream_env import DreamParallelEnv
+
+    env = DreamParallelEnv(preset="test")
+    h, w = env.model.frame_shape[:2]
+    starts = {s: np.random.default_rng(i).integers(0, 256, (2, h, w, 3), dtype=np.uint8)
+              for i, s in enumerate(("A", "B", "C"))}
+
+    class Starts:  # engine states stand-in: a name -> fixed start frames
+        def from_options(self, options):
+            return starts[options["engine_state"]], {"start": "engine_state"}
+
+    env.start_frames = Starts()
+    act = lambda i: {df.LEARNER: df.make_action(forward=i % 2, camera=[0.0, 50.0 * (i % 3)]),
+                     df.PARTNER: df.make_action(left=1, camera=[-20.0, 0.0])}
+    rollouts = [_rollout_of(n, seed, start) for n, seed, start in ((3, 7, "A"), (2, 8, "B"), (3, 9, "C"))]
+    for r in rollouts:
+        r.actions = [act(i) for i in range(len(r.actions))]
+    batched = df.dream_rollouts(env, rollouts, dream_seed=2, batch=2)
+    for r, (frames, within) in zip(rollouts, batched):
+        ref_frames, ref_within = df.dream_rollout(env, r, dream_seed=2)
+        assert frames.shape == ref_frames.shape == (len(r.actions) + 1, h, w, 3)
+        assert np.abs(frames.astype(int) - ref_frames).max() <= 1
+        np.testing.assert_allclose(within, ref_within, atol=0.05)
+
+
 @pytest.mark.slow  # ~50 s on 2 shared cores, ~45 of them building and compiling the test-preset model
 def test_end_to_end_tiny_run_writes_json_png_mp4(tmp_path):
     out = tmp_path / "fid.json"
