@@ -1091,11 +1091,12 @@ def summarize(parts: Sequence[tuple[Scored, np.ndarray]]) -> dict:
                         counts = classes[src].setdefault(c, [0, 0])
                         counts[0] += ch
                         counts[1] += cn
+        engine_hits, counted = pooled(classes["engine"])
         out[f"{q}_agreement_dream"] = _r(ratio(*pooled(classes["dream"])))
-        out[f"{q}_agreement_engine"] = _r(ratio(*pooled(classes["engine"])))
+        out[f"{q}_agreement_engine"] = _r(ratio(engine_hits, counted))
         out[f"{q}_balanced_dream"] = _r(balanced_agreement(classes["dream"]))
         out[f"{q}_balanced_engine"] = _r(balanced_agreement(classes["engine"]))
-        out[f"{q}_counted_steps"] = pooled(classes["engine"])[1]
+        out[f"{q}_counted_steps"] = counted
         out[f"{q}_truth_classes"] = {c: n for c, (_, n) in sorted(classes["engine"].items())}
     if parts and parts[0][0].feat_e is not None:
         fe, fd = cat(lambda s: s.feat_e), cat(lambda s: s.feat_d)
