@@ -862,8 +862,8 @@ FORMULA = "formula:warp"  # the reference row of the warps' formulas alone (``Wa
 
 class WarpFormula:
     """A reference row, not a world model: each frame is the previous one moved by the formulas the shipped
-    model feeds its DiT (``DiTConfig.walk_warp``, then ``camera_warp``, with its ``warp_interp``), applied to
-    pixels from the engine's true first frame. It shows what the geometry alone gives on each program and
+    model feeds its DiT (``DiTConfig.walk_warp`` and ``jump_warp``, then ``camera_warp``, with its
+    ``warp_interp``), applied to pixels from the engine's true first frame. It shows what the geometry alone gives on each program and
     metric (a turn's new view is the edge repeated, the partner never moves, the HUD moves with the view), so
     the model's rows can be read against it (docs/evaluation.md). Spec ``formula:warp``."""
 
@@ -884,12 +884,16 @@ class WarpFormula:
         from solaris_env.world_model import camera
 
         k, kb, dit = self.frames_per_step, self.cfg.action.keyboard_dim, self.cfg.dit
-        frames, pending = [rollout.engine_THW3[0]], None
+        frames, pending, jump = [rollout.engine_THW3[0]], None, None
         for step in rollout.actions:
             ticks_kA, pending = expand_action(step[LEARNER], k, pending, LEARNER)
             ticks = jnp.asarray(ticks_kA)[None]  # (1, k, 25): one frame's action window
+            lift = None
+            if dit.jump_warp:  # the jump state carried from step to step, as a rollout's cache carries it
+                lift, after = camera.frame_lifts(ticks[None, ..., :kb], 1, k, jump)
+                lift, jump = lift[0, 0], after[:, :, 0]
             x = camera.warp_previous(jnp.asarray(frames[-1])[None], ticks[..., kb:], ticks[..., :kb], k,
-                                     self.pixels_per_degree, dit.walk_warp, dit.warp_interp)
+                                     self.pixels_per_degree, dit.walk_warp, dit.warp_interp, lift, dit.jump_warp)
             frames.append(np.clip(np.rint(np.asarray(x[0])), 0, 255).astype(np.uint8))
         return np.stack(frames)
 

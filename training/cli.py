@@ -125,7 +125,7 @@ def cmd_action_conditioning(args) -> int:
     from training.surgery import with_action_conditioning
     dest = with_action_conditioning(args.model, args.out, args.mouse_gain, camera_warp=args.camera_warp,
                                     walk_warp=args.walk_warp, previous_skip=args.previous_skip or None,
-                                    warp_interp=args.warp_interp)
+                                    warp_interp=args.warp_interp, jump_warp=args.jump_warp)
     print(f"wrote {dest}")
     return 0
 
@@ -229,6 +229,10 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--walk-warp", type=float, default=None, metavar="S",
                    help="set DiTConfig.walk_warp (eye heights per tick of a held movement key; 0 = off; needs the "
                         "camera warp): the warped previous latent also follows the walk")
+    g.add_argument("--jump-warp", type=float, default=None, metavar="S",
+                   help="set DiTConfig.jump_warp (eye heights per block of height simulated from the jump key; "
+                        "0 = off; 1/1.62 is the geometry; needs the camera warp): the warped previous latent's "
+                        "floor also follows the jump")
     g.add_argument("--previous-skip", action="store_true",
                    help="turn on DiTConfig.previous_skip (needs the camera warp): the velocity gets gated "
                         "x_t and warped previous latent terms, the gates starting at zero")

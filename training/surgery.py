@@ -111,7 +111,7 @@ def with_vae(model: str | Path, vae_from: str | Path, dest: str | Path) -> Path:
 def with_action_conditioning(model: str | Path, dest: str | Path, mouse_input_gain: float | None = None,
                              camera_warp: tuple[float, float] | None = None,
                              walk_warp: float | None = None, previous_skip: bool | None = None,
-                             warp_interp: str | None = None) -> Path:
+                             warp_interp: str | None = None, jump_warp: float | None = None) -> Path:
     """Write ``model`` under another action conditioning, computing the same function (None keeps a setting):
 
     * ``mouse_input_gain``: the mouse rows of every ``mouse_mlp`` first kernel scaled by old / new gain, so
@@ -122,6 +122,8 @@ def with_action_conditioning(model: str | Path, dest: str | Path, mouse_input_ga
     * ``walk_warp``: sets ``DiTConfig.walk_warp`` (eye heights per tick; needs the camera warp, given or already
       on). The weights are kept: the function changes only where the movement keys are held, and fine-tuning
       teaches the DiT to read the walked warp;
+    * ``jump_warp``: sets ``DiTConfig.jump_warp`` (eye heights per block of a simulated jump; needs the camera
+      warp). The weights are kept: the function changes only where the jump key lifts the player;
     * ``previous_skip=True``: turns on ``DiTConfig.previous_skip`` with its gates at zero (needs the camera warp,
       given or already on); from a model that has it, its trained gates are kept;
     * ``warp_interp``: sets ``DiTConfig.warp_interp`` (how the camera warp samples between latent pixels); the
@@ -135,6 +137,8 @@ def with_action_conditioning(model: str | Path, dest: str | Path, mouse_input_ga
     dit = old.dit if camera_warp is None else dataclasses.replace(old.dit, camera_warp=tuple(map(float, camera_warp)))
     if walk_warp is not None:
         dit = dataclasses.replace(dit, walk_warp=float(walk_warp))
+    if jump_warp is not None:
+        dit = dataclasses.replace(dit, jump_warp=float(jump_warp))
     if previous_skip is not None:
         dit = dataclasses.replace(dit, previous_skip=bool(previous_skip))
     if warp_interp is not None:
@@ -163,14 +167,14 @@ def with_action_conditioning(model: str | Path, dest: str | Path, mouse_input_ga
 def official_dit(model: str | Path, dest: str | Path, seed: int = 0) -> Path:
     """Write ``model``'s VAE and image encoder, unchanged, with a freshly initialised DiT (``seed``) in the
     official layout to ``dest``: our options at their official values (``DiTConfig.camera_warp``,
-    ``walk_warp`` and ``previous_skip`` off, ``warp_interp`` linear, ``ActionConfig.mouse_input_gain`` 1, and
-    the sampler's ``noise_warp`` 0, fresh noise: it moves the noise with the camera warp), every size as
-    ``model``'s. Trained through the DiT stages with the same steps and data as ``model``'s DiT, it is the
-    control that measures those options (docs/training.md, "The control row")."""
+    ``walk_warp``, ``jump_warp`` and ``previous_skip`` off, ``warp_interp`` linear,
+    ``ActionConfig.mouse_input_gain`` 1, and the sampler's ``noise_warp`` 0, fresh noise: it moves the noise with
+    the camera warp), every size as ``model``'s. Trained through the DiT stages with the same steps and data as
+    ``model``'s DiT, it is the control that measures those options (docs/training.md, "The control row")."""
     base = WorldModel.load(model_directory(model))
     old = base.config
-    dit = dataclasses.replace(old.dit, camera_warp=(0.0, 0.0), walk_warp=0.0, previous_skip=False,
-                              warp_interp="linear")
+    dit = dataclasses.replace(old.dit, camera_warp=(0.0, 0.0), walk_warp=0.0, jump_warp=0.0,
+                              previous_skip=False, warp_interp="linear")
     cfg = old.replace(dit=dit, action=dataclasses.replace(old.action, mouse_input_gain=1.0),
                       sampler=dataclasses.replace(old.sampler, noise_warp=0.0))
     fresh_dit, _, _ = WorldModel.from_config(cfg, seed=seed).params

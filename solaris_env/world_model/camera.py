@@ -105,36 +105,47 @@ def frame_moves(keyboard_BPFWK: jax.Array, frames_per_step: int) -> jax.Array:
     return step.sum(axis=-2)
 
 
-def walk_source(h: int, w: int, move_N2: jax.Array) -> tuple[jax.Array, jax.Array]:
+def walk_source(h: int, w: int, move_N2: jax.Array, eyes_N2: jax.Array | None = None) -> tuple[jax.Array, jax.Array]:
     """Where each latent pixel of the next view was in the previous one after walking ``move_N2`` [forward,
-    right] eye heights: (N, h, w) source rows and columns (fractional latent pixels).
+    right] eye heights and, with ``eyes_N2``, rising from H0 to H1 eye heights above the floor (default 1, 1):
+    (N, h, w) source rows and columns (fractional latent pixels).
 
     The scene is a floor below the eye and a ceiling above it, each one eye height away (the "tunnel"; the sky
     is uniform, so moving it costs nothing, and a flat world's ground is exactly the floor). A view ray at
-    tangents (x, v) from the view's centre (v down) meets the plane at depth 1/|v| eye heights; walking f
-    forward and s right it was at depth 1/|v| + f and s further right before, so it came from
-    v_src = v / (1 + |v| f), x_src = (x + |v| s) / (1 + |v| f). Rows at the horizon do not move."""
+    tangents (x, v) from the view's centre (v down) meets the floor at depth H1/v; walking f forward and s right
+    from eye height H0 to H1 it was at depth H1/v + f, s further right and H0 below the eye before, so it came
+    from v_src = H0 v / (H1 + v f), x_src = (x H1 + v s) / (H1 + v f). The ceiling rows (v < 0) walk as at
+    H0 = H1 = 1 (a jump moves the ground, not the far or the sky). Rows at the horizon do not move."""
     ty, tx = VIEW_HALF_TAN
     v = ((jnp.arange(h, dtype=jnp.float32) + 0.5) / h * 2.0 - 1.0) * ty  # (h,) down
     x = ((jnp.arange(w, dtype=jnp.float32) + 0.5) / w * 2.0 - 1.0) * tx  # (w,) right
     av = jnp.abs(v)[None, :, None]
     f, s = move_N2[:, 0, None, None], move_N2[:, 1, None, None]
-    depth = jnp.maximum(1.0 + av * f, _MIN_DEPTH)  # (N, h, 1)
-    v_src = v[None, :, None] / depth
-    x_src = (x[None, None, :] + av * s) / depth
+    if eyes_N2 is None:
+        h0 = h1 = jnp.ones_like(f)
+    else:
+        floor = (v > 0)[None, :, None]
+        h0 = jnp.where(floor, eyes_N2[:, 0, None, None], 1.0)
+        h1 = jnp.where(floor, eyes_N2[:, 1, None, None], 1.0)
+    depth = jnp.maximum(1.0 + av * f / h1, _MIN_DEPTH)  # (N, h, 1)
+    v_src = v[None, :, None] * (h0 / h1) / depth
+    x_src = (x[None, None, :] + av * s / h1) / depth
     rows = (v_src / ty + 1.0) / 2.0 * h - 0.5
     cols = (x_src / tx + 1.0) / 2.0 * w - 0.5
-    return jnp.broadcast_to(rows, (move_N2.shape[0], h, w)), cols
+    return jnp.broadcast_to(rows, (move_N2.shape[0], h, w)), jnp.broadcast_to(cols, (move_N2.shape[0], h, w))
 
 
-def walk_latents(x_NhwC: jax.Array, move_N2: jax.Array) -> jax.Array:
-    """Each latent frame's content as seen after walking ``move_N2`` [forward, right] eye heights
-    (``walk_source``; bilinear, indices clamped so the border repeats the edge). A zero move returns the frame
-    unchanged."""
+def walk_latents(x_NhwC: jax.Array, move_N2: jax.Array, eyes_N2: jax.Array | None = None) -> jax.Array:
+    """Each latent frame's content as seen after walking ``move_N2`` [forward, right] eye heights and, with
+    ``eyes_N2``, rising from H0 to H1 eye heights above the floor (``walk_source``; bilinear, indices clamped so
+    the border repeats the edge). A zero move at a constant height returns the frame unchanged."""
     if x_NhwC.ndim != 4 or move_N2.shape != (x_NhwC.shape[0], 2):
         raise ValueError(f"walk_latents takes x (N, h, w, C) and move (N, 2); got {x_NhwC.shape}, {move_N2.shape}")
+    if eyes_N2 is not None and eyes_N2.shape != move_N2.shape:
+        raise ValueError(f"walk_latents takes eyes (N, 2) [H0, H1] like move; got {eyes_N2.shape}")
     n, h, w, c = x_NhwC.shape
-    rows, cols = walk_source(h, w, move_N2.astype(jnp.float32))
+    rows, cols = walk_source(h, w, move_N2.astype(jnp.float32), None if eyes_N2 is None
+                             else eyes_N2.astype(jnp.float32))
     r0, c0 = jnp.floor(rows), jnp.floor(cols)
     fr, fc = (rows - r0)[..., None].astype(x_NhwC.dtype), (cols - c0)[..., None].astype(x_NhwC.dtype)
     flat = x_NhwC.reshape(n, h * w, c)
@@ -145,8 +156,62 @@ def walk_latents(x_NhwC: jax.Array, move_N2: jax.Array) -> jax.Array:
 
     top = (1 - fc) * take(r0, c0) + fc * take(r0, c0 + 1)
     bottom = (1 - fc) * take(r0 + 1, c0) + fc * take(r0 + 1, c0 + 1)
-    still = jnp.all(move_N2 == 0, axis=-1)[:, None, None, None]  # standing still returns x itself, bit for bit
-    return jnp.where(still, x_NhwC, (1 - fr) * top + fr * bottom)
+    still = jnp.all(move_N2 == 0, axis=-1)  # standing still at one height returns x itself, bit for bit
+    if eyes_N2 is not None:
+        still = still & (eyes_N2[:, 0] == eyes_N2[:, 1])
+    return jnp.where(still[:, None, None, None], x_NhwC, (1 - fr) * top + fr * bottom)
+
+
+# ---------------------------------------------------------------------------------------------
+# Jumping (``DiTConfig.jump_warp``, docs/model.md §8.1)
+# ---------------------------------------------------------------------------------------------
+
+# Minecraft's vertical motion per tick (blocks, ticks; ``engine/constants.py`` has the same values): a jump from
+# the ground sets the vertical velocity, then every tick moves by it and it becomes (vy - gravity) * drag.
+JUMP_VELOCITY, GRAVITY, VERTICAL_DRAG = 0.42, 0.08, 0.98
+_JUMP = MODEL_INDEX["jump"]
+JUMP_STATE = 3  # (height above the floor, vertical velocity, the previous latent frame's mean height), blocks
+
+
+def jump_ticks(jump_BPT: jax.Array, state_BP2: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Heights above a flat floor tick by tick from the jump key alone: (heights after each tick (B, P, T),
+    (height, vertical velocity) after each tick (B, P, T, 2)), from ``state_BP2``. On the floor (height 0, not
+    rising) a held jump key jumps; a landing stops on the floor. Nothing else (blocks underfoot, water) is known,
+    so a jump onto a block lands back on the floor."""
+    def tick(state, jump):
+        y, vy = state[..., 0], state[..., 1]
+        vy = jnp.where((y <= 0.0) & (vy <= 0.0) & (jump > 0.5), JUMP_VELOCITY, vy)
+        y = y + vy
+        landed = y <= 0.0
+        y, vy = jnp.where(landed, 0.0, y), jnp.where(landed, 0.0, vy)
+        new = jnp.stack([y, (vy - GRAVITY) * VERTICAL_DRAG], axis=-1)
+        return new, new
+
+    _, states = jax.lax.scan(tick, state_BP2.astype(jnp.float32), jnp.moveaxis(jump_BPT.astype(jnp.float32), -1, 0))
+    states = jnp.moveaxis(states, 0, -2)  # (B, P, T, 2)
+    return states[..., 0], states
+
+
+def frame_lifts(keyboard_BPTK: jax.Array, num_frames: int, frames_per_step: int,
+                state_BP3: jax.Array | None = None) -> tuple[jax.Array, jax.Array]:
+    """Each latent frame's height change from its jump key: (lift (B, P, F, 2) = [the previous frame's mean
+    height, this frame's] in blocks, the jump state after each frame (B, P, F, ``JUMP_STATE``)).
+
+    The frames' ticks are the last k * F entries of the (padded) keyboard sequence (frame f's are the last k of
+    its window; docs/model.md §4.3); a frame's height is the mean over its k ticks, as its latent sums k video
+    frames. ``state_BP3`` is the state before the first frame (``JUMP_STATE``; default: standing on the floor,
+    the previous mean height 0): a whole clip starts there, a rollout's cache carries it on."""
+    b, p = keyboard_BPTK.shape[:2]
+    k = frames_per_step
+    if keyboard_BPTK.shape[-1] <= _JUMP or keyboard_BPTK.shape[2] < k * num_frames:
+        raise ValueError(f"frame_lifts reads the jump key of the last k * F = {k * num_frames} ticks; the keyboard "
+                         f"sequence has shape {keyboard_BPTK.shape}")
+    state = jnp.zeros((b, p, JUMP_STATE), jnp.float32) if state_BP3 is None else state_BP3.astype(jnp.float32)
+    heights, states = jump_ticks(keyboard_BPTK[:, :, keyboard_BPTK.shape[2] - k * num_frames:, _JUMP], state[..., :2])
+    mean_BPF = heights.reshape(b, p, num_frames, k).mean(axis=-1)
+    prev_BPF = jnp.concatenate([state[..., 2:], mean_BPF[..., :-1]], axis=-1)
+    after = jnp.concatenate([states.reshape(b, p, num_frames, k, 2)[..., -1, :], mean_BPF[..., None]], axis=-1)
+    return jnp.stack([prev_BPF, mean_BPF], axis=-1), after
 
 
 # ---------------------------------------------------------------------------------------------
@@ -155,11 +220,14 @@ def walk_latents(x_NhwC: jax.Array, move_N2: jax.Array) -> jax.Array:
 
 
 def warp_previous(prev_NhwC: jax.Array, mouse_NWA: jax.Array, keyboard_NWK: jax.Array, frames_per_step: int,
-                  pixels_per_degree: tuple[float, float], walk_warp: float, interp: str) -> jax.Array:
+                  pixels_per_degree: tuple[float, float], walk_warp: float, interp: str,
+                  lift_N2: jax.Array | None = None, jump_warp: float = 0.0) -> jax.Array:
     """Each frame moved by its action window: by its walk (``walk_latents``, ``walk_warp`` eye heights per tick;
-    0 = no walk), then by its camera turn (``shift_latents``). ``prev_NhwC`` float, one action window per frame."""
+    0 = no walk) and its jump (``lift_N2`` [previous, this] heights in blocks from ``frame_lifts``, times
+    ``jump_warp`` eye heights per block; 0 = no jump), then by its camera turn (``shift_latents``).
+    ``prev_NhwC`` float, one action window per frame."""
     x = prev_NhwC.astype(jnp.float32)
-    if walk_warp:
-        x = walk_latents(x, frame_moves(keyboard_NWK, frames_per_step) * walk_warp)
+    eyes = None if not jump_warp or lift_N2 is None else 1.0 + jump_warp * lift_N2.astype(jnp.float32)
+    if walk_warp or eyes is not None:
+        x = walk_latents(x, frame_moves(keyboard_NWK, frames_per_step) * walk_warp, eyes)
     return shift_latents(x, content_shift(frame_turns(mouse_NWA, frames_per_step), pixels_per_degree), interp)
-

@@ -59,6 +59,10 @@ class DiTConfig:
     # heights per tick of a held movement key (``camera.walk_latents``; Minecraft's walking speed over its eye
     # height is 0.216 / 1.62 = 0.133). Needs the camera warp, whose input channels it shares.
     walk_warp: float = 0.0
+    # Jump warp (ours; 0 = off): the warped previous latent's floor is also moved by the frame's height change,
+    # simulated from the jump key (``camera.frame_lifts``), at this many eye heights per block (the geometric
+    # value is 1 / 1.62, Minecraft's eye height). Needs the camera warp.
+    jump_warp: float = 0.0
     # Previous-frame skip (ours; off = the official model): the velocity gets g(t) * (x_t - base) added, base being
     # the warped previous latent (the first-frame latent where the conditioning gives the frame) and g a
     # zero-initialised per-channel gate of the time embedding, so the DiT starts from "the frame is the
@@ -78,6 +82,10 @@ class DiTConfig:
                  f"walk_warp must be a finite number >= 0 (eye heights per tick), got {self.walk_warp}")
         _require(self.walk_warp == 0.0 or self.camera_warp_enabled,
                  f"walk_warp={self.walk_warp} moves the camera warp's input; it needs camera_warp on")
+        _require(math.isfinite(self.jump_warp) and self.jump_warp >= 0.0,
+                 f"jump_warp must be a finite number >= 0 (eye heights per block), got {self.jump_warp}")
+        _require(self.jump_warp == 0.0 or self.camera_warp_enabled,
+                 f"jump_warp={self.jump_warp} moves the camera warp's input; it needs camera_warp on")
         _require(self.warp_interp in WARP_INTERPOLATIONS,
                  f"warp_interp must be one of {WARP_INTERPOLATIONS}, got {self.warp_interp!r}")
         _require(not self.previous_skip or self.camera_warp_enabled,

@@ -466,7 +466,7 @@ class WorldDiT(nnx.Module):
         return self._forward_sequence(
             x, t, cond, context, mouse_w, self._windows(keyboard, num_frames),
             rope.frame_positions(num_frames), frame_mask=None, kv_stop_F=None, remat=remat,
-            prev=_previous_frames(x if clean is None else clean))
+            prev=_previous_frames(x if clean is None else clean), lift=self._clip_lifts(keyboard, num_frames))
 
     def forward_causal(self, x, t, cond, context, mouse, keyboard, clean=None, *, remat: bool = False) -> jax.Array:
         """Block-causal sliding window over frames (diffusion forcing: t varies per frame). Returns v like x.
@@ -476,7 +476,8 @@ class WorldDiT(nnx.Module):
         return self._forward_sequence(
             x, t, cond, context, mouse_w, self._windows(keyboard, num_frames),
             rope.frame_positions(num_frames), masks.causal_window_frame_mask(num_frames, self.cfg.dit.window),
-            kv_stop_F=None, remat=remat, prev=_previous_frames(x if clean is None else clean))
+            kv_stop_F=None, remat=remat, prev=_previous_frames(x if clean is None else clean),
+            lift=self._clip_lifts(keyboard, num_frames))
 
     def forward_teacher_forcing(self, clean, noisy, t_clean, t_noisy, cond, context, mouse, keyboard, *,
                                 kv_grad: bool = True, remat: bool = True) -> jax.Array:
@@ -495,6 +496,7 @@ class WorldDiT(nnx.Module):
         twice = lambda a: jnp.concatenate([a, a], axis=2)
         kv_stop_F = None if kv_grad else np.repeat([True, False], num_frames)
         mouse_w = self._windows(mouse, num_frames)
+        lift = self._clip_lifts(keyboard, num_frames)
         v = self._forward_sequence(
             jnp.concatenate([clean, noisy], axis=2), jnp.concatenate([t_clean, t_noisy], axis=2), twice(cond),
             context, twice(mouse_w), twice(self._windows(keyboard, num_frames)),
@@ -502,7 +504,7 @@ class WorldDiT(nnx.Module):
             masks.teacher_forcing_frame_mask(num_frames, self.cfg.dit.window), kv_stop_F,
             attend=functools.partial(_teacher_forcing_attention, num_frames=num_frames, window=self.cfg.dit.window,
                                      block=noisy.shape[1] * math.prod(self._grid()), impl=self.cfg.dit.attention_impl),
-            remat=remat, prev=twice(_previous_frames(clean)))
+            remat=remat, prev=twice(_previous_frames(clean)), lift=None if lift is None else twice(lift))
         return v[:, :, num_frames:]
 
     def decode(self, x, t, cond, context_kv: ContextKV, mouse, keyboard, cache: kv_cache.DiTCache,
@@ -540,7 +542,7 @@ class WorldDiT(nnx.Module):
         for name, n in (("layers", len(layers)), ("cache", len(cache.layers))):
             if n != d.num_layers:
                 raise ValueError(f"{name} has {n} layers; the config has num_layers={d.num_layers}")
-        cond_in, tokens, e, base = self._prepare_cached(x, t, cond, context_kv, mouse, keyboard, cache)
+        cond_in, tokens, e, base, jump_after = self._prepare_cached(x, t, cond, context_kv, mouse, keyboard, cache)
         gh, gw = self._grid()
         angles = rope.rope_3d_angles(d.rope_split, d.rope_theta, num_frames, gh, gw, tokens.shape[1], start_frame)
         action_angles = rope.temporal_rope_angles(c.action.rope_dims, c.action.rope_theta, num_frames, start_frame)
@@ -555,7 +557,8 @@ class WorldDiT(nnx.Module):
             return v, cache
         # the camera warp's latent: the newest committed frame's
         latent = None if cache.latent is None else x[:, :, commit - 1].astype(cache.latent.dtype)
-        return v, kv_cache.DiTCache(layers=tuple(new_layers), latent=latent)
+        jump = None if jump_after is None else jump_after[:, :, commit - 1]  # the jump state after that frame
+        return v, kv_cache.DiTCache(layers=tuple(new_layers), latent=latent, jump=jump)
 
     def layer_blocks(self) -> "tuple[DiTBlock, ...]":
         """The stacked blocks as one module per layer (``unstack_blocks``: each layer's weights sliced out
@@ -579,7 +582,8 @@ class WorldDiT(nnx.Module):
 
     # -- internals -----------------------------------------------------------------------------------
     def _prepare_cached(self, x, t, cond, context_kv: ContextKV, mouse, keyboard, cache: kv_cache.DiTCache):
-        """Shape checks and ``_prepare`` for ``decode`` (no context projection)."""
+        """Shape checks and ``_prepare`` for ``decode`` (no context projection); also returns the jump state after
+        each new frame (``camera.frame_lifts``; None without the jump warp)."""
         c = self.cfg
         b, p, num_frames = x.shape[:3]
         want = (b, p, c.dit.num_heads, None, c.dit.head_dim)
@@ -595,19 +599,33 @@ class WorldDiT(nnx.Module):
         self._validate(x, t, cond, context_shape, mouse, keyboard)
         k, w = c.frames_per_step, c.action_window
         windows = lambda a: jnp.stack([a[:, :, k * f:k * f + w] for f in range(num_frames)], axis=2)
-        return self._prepare(x, t, cond, None, windows(mouse), windows(keyboard), self._cached_previous(x, cache))
+        lift = jump_after = None
+        if self.cfg.dit.jump_warp:
+            if cache.jump is None:
+                raise ValueError("jump_warp is on but the cache has no jump state (kv_cache.init_cache)")
+            lift, jump_after = camera_lib.frame_lifts(keyboard, num_frames, k, cache.jump)
+        return (*self._prepare(x, t, cond, None, windows(mouse), windows(keyboard), self._cached_previous(x, cache),
+                               lift), jump_after)
 
-    def _warped(self, prev_BPFhwC, mouse_BPFWA, keyboard_BPFWA) -> jax.Array:
-        """Each frame's previous latent, its content moved by the frame's walk (``walk_warp``) and then by its
-        camera turn (``camera_warp``)."""
+    def _clip_lifts(self, keyboard, num_frames: int) -> jax.Array | None:
+        """(B, P, F, 2) each frame's [previous, own] height from the jump key, the clip starting on the floor
+        (``camera.frame_lifts``); None without the jump warp."""
+        if not self.cfg.dit.jump_warp:
+            return None
+        return camera_lib.frame_lifts(keyboard, num_frames, self.cfg.frames_per_step)[0]
+
+    def _warped(self, prev_BPFhwC, mouse_BPFWA, keyboard_BPFWA, lift_BPF2=None) -> jax.Array:
+        """Each frame's previous latent, its content moved by the frame's walk (``walk_warp``) and jump
+        (``jump_warp``, ``lift_BPF2``) and then by its camera turn (``camera_warp``)."""
         if prev_BPFhwC is None:
             raise ValueError("camera_warp is on but no previous latents were given")
         lead = prev_BPFhwC.shape[:3]
         flat = lambda a: a.reshape((-1,) + a.shape[3:])
         dit = self.cfg.dit
+        lift = None if lift_BPF2 is None else lift_BPF2.reshape(-1, 2)
         return camera_lib.warp_previous(flat(prev_BPFhwC), flat(mouse_BPFWA), flat(keyboard_BPFWA),
                                         self.cfg.frames_per_step, dit.camera_warp, dit.walk_warp,
-                                        dit.warp_interp).reshape(lead + prev_BPFhwC.shape[3:])
+                                        dit.warp_interp, lift, dit.jump_warp).reshape(lead + prev_BPFhwC.shape[3:])
 
     def _cached_previous(self, x, cache: kv_cache.DiTCache):
         """Previous latents of the F new frames of a cached pass: the cache's last frame, then x's own."""
@@ -645,17 +663,18 @@ class WorldDiT(nnx.Module):
                 raise ValueError(f"{name} has shape {got}; expected {want} (F={f}, T_pad = k*(F-1)+window = {t_pad})")
         return f
 
-    def _prepare(self, x, t, cond, context, mouse_BPFWA, keyboard_BPFWA, prev=None):
+    def _prepare(self, x, t, cond, context, mouse_BPFWA, keyboard_BPFWA, prev=None, lift=None):
         """Patchify, embed time/context/players -> (conditioning, tokens_BPFLD, e_BPFD, skip base or None);
         ``context=None`` leaves the projected context out (the caller brings per-layer cross-attention K/V).
         ``prev``: each frame's previous latent (like x), read with the camera warp only. The skip base
-        (``previous_skip``): the warped previous latent, the first-frame latent where the mask gives the frame."""
+        (``previous_skip``): the warped previous latent, the first-frame latent where the mask gives the frame.
+        ``lift``: (B, P, F, 2) the frames' heights for the jump warp (``camera.frame_lifts``), or None."""
         b, p, f = x.shape[:3]
         dtype = jnp.dtype(self.cfg.dit.dtype)
         parts = [x, cond]  # channel order: [x, mask, first-frame latent (, warped previous latent)]
         base = None
         if self.cfg.dit.camera_warp_enabled:
-            warped = self._warped(prev, mouse_BPFWA, keyboard_BPFWA)
+            warped = self._warped(prev, mouse_BPFWA, keyboard_BPFWA, lift)
             parts.append(warped)
             if self.cfg.dit.previous_skip:
                 given = cond[..., :1].astype(jnp.float32)  # mask channel 0: 1 where the frame is given
@@ -685,8 +704,8 @@ class WorldDiT(nnx.Module):
             kv_stop_F, kv_stop_L)
 
     def _forward_sequence(self, x, t, cond, context, mouse_BPFWA, keyboard_BPFWA, frame_pos_F, frame_mask,
-                          kv_stop_F, attend=None, remat: bool = False, prev=None) -> jax.Array:
-        cond_in, tokens, e, base = self._prepare(x, t, cond, context, mouse_BPFWA, keyboard_BPFWA, prev)
+                          kv_stop_F, attend=None, remat: bool = False, prev=None, lift=None) -> jax.Array:
+        cond_in, tokens, e, base = self._prepare(x, t, cond, context, mouse_BPFWA, keyboard_BPFWA, prev, lift)
         plan = self._sequence_plan(frame_pos_F, frame_mask, kv_stop_F, x.shape[1])
         if attend is not None:  # the self-attention brings its own mask; no dense token mask
             plan = plan._replace(token_mask=None, attend=attend)

@@ -74,6 +74,9 @@ class DiTCache:
     # camera warp only (``DiTConfig.camera_warp``): (B, P, h, w, C) the last cached frame's latent (as the
     # commit pass got it), the next frame's previous latent; None otherwise
     latent: jax.Array | None = None
+    # jump warp only (``DiTConfig.jump_warp``): (B, P, ``camera.JUMP_STATE``) the jump state after the last cached
+    # frame (height, vertical velocity, that frame's mean height; ``camera.frame_lifts``); None otherwise
+    jump: jax.Array | None = None
 
 
 def empty_cache(lead_shape: tuple[int, ...], batch: int, slots: int, heads: int, head_dim: int,
@@ -105,7 +108,8 @@ def init_cache(cfg: WorldModelConfig, batch: int, dtype=None) -> DiTCache:
 
     latent = (jnp.zeros((batch, players, cfg.latent_height, cfg.latent_width, cfg.out_channels), jnp.float32)
               if cfg.dit.camera_warp_enabled else None)
-    return DiTCache(layers=tuple(layer() for _ in range(cfg.dit.num_layers)), latent=latent)
+    jump = jnp.zeros((batch, players, 3), jnp.float32) if cfg.dit.jump_warp else None  # on the floor
+    return DiTCache(layers=tuple(layer() for _ in range(cfg.dit.num_layers)), latent=latent, jump=jump)
 
 
 def update(cache: KVCache, k_new: jax.Array, v_new: jax.Array) -> KVCache:

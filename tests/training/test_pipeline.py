@@ -254,7 +254,8 @@ def test_camera_warp_retrofit_computes_the_same(run, tmp_path):
     skipper = WorldModel.load(skip)
     assert skipper.config.dit.previous_skip and skipper.config.dit.walk_warp == 0.1
     assert all(np.abs(np.asarray(a)).max() == 0 for a in jax.tree.leaves(skipper.params[0]["skip_gate"]))
-    actions[..., 0] = 1.0  # forward held, still turning
+    from solaris_env.spaces import MODEL_INDEX
+    actions[..., MODEL_INDEX["forward"]] = 1.0  # forward held, still turning
     outs = [third_step(model, first, actions) for model in (walker, skipper)]
     assert np.abs(outs[0] - outs[1]).max() <= 1
     with pytest.raises(ValueError, match="previous_skip"):
@@ -269,6 +270,24 @@ def test_camera_warp_retrofit_computes_the_same(run, tmp_path):
     assert cubist.config.replace(dit=skipper.config.dit) == skipper.config
     assert all(np.array_equal(np.asarray(a), np.asarray(b))
                for a, b in zip(jax.tree.leaves(cubist.params), jax.tree.leaves(skipper.params)))
+    # the jump warp too: the weights kept, the same frames; the streaming state carries the simulated jump from
+    # step to step (test_camera.py checks that a trained warp reads it)
+    jump = tmp_path / "jump"
+    assert cli.main(["action-conditioning", str(cubic), "--jump-warp", "0.617", "--out", str(jump)]) == 0
+    jumper = WorldModel.load(jump)
+    assert jumper.config.dit.jump_warp == 0.617 and jumper.config.replace(dit=cubist.config.dit) == cubist.config
+    assert all(np.array_equal(np.asarray(a), np.asarray(b))
+               for a, b in zip(jax.tree.leaves(jumper.params), jax.tree.leaves(cubist.params)))
+    actions[..., MODEL_INDEX["jump"]] = 1.0  # jump held: the warp input moves, its rows still at zero
+    outs = [third_step(model, first, actions) for model in (cubist, jumper)]
+    assert np.abs(outs[0] - outs[1]).max() <= 1
+    state = jumper.init(first, 0)
+    for _ in range(3):  # step i commits frame i - 1: frames 1 and 2 jumped, 8 ticks in the air
+        _, state = jumper.step(state, actions)
+    height = np.asarray(state.dit_cache.jump)[..., 0]
+    np.testing.assert_allclose(height, 1.0245, atol=1e-3)  # the engine's height 8 ticks into a jump
+    with pytest.raises(ValueError, match="jump_warp"):
+        with_action_conditioning(src, tmp_path / "nojump", jump_warp=0.617)  # no camera warp to carry it
 
 
 def test_self_forcing_stage_runs_from_stages_2_and_3(run, data):

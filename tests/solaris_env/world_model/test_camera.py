@@ -352,3 +352,121 @@ def test_previous_skip_gate_learns_from_zero():
     grads = nnx.grad(loss)(model)
     assert float(jnp.abs(grads["skip_gate"]["bias"].get_value()).min()) > 0
     assert float(jnp.abs(grads["skip_gate"]["kernel"].get_value()).max()) > 0
+
+
+# ---------------------------------------------------------------------------------------------
+# Jump warp
+# ---------------------------------------------------------------------------------------------
+
+def test_jump_constants_are_the_engines():
+    from solaris_env.engine import constants as C
+    assert (camera_lib.JUMP_VELOCITY, camera_lib.GRAVITY, camera_lib.VERTICAL_DRAG) == (
+        C.JUMP_VELOCITY, C.GRAVITY, C.VERTICAL_DRAG)
+
+
+def test_jump_ticks_follow_the_engine_on_flat_ground():
+    """The jump key alone, simulated, against the engine's player on a flat world: held, tapped, and pressed in
+    the air (ignored)."""
+    from solaris_env.real_env import RealParallelEnv
+    from solaris_env.spaces import noop
+    rng = np.random.default_rng(0)
+    jumps = np.concatenate([np.ones(30), np.zeros(6), (rng.random(60) < 0.2)]).astype(np.float32)
+    env = RealParallelEnv(num_players=2, world="flat", resolution=(16, 16), ticks_per_step=1)
+    _, infos = env.reset(seed=3)
+    agent = env.possible_agents[0]
+    y0, ys = infos[agent]["pos"][1], []
+    for j in jumps:
+        a = {name: noop() for name in env.possible_agents}
+        a[agent]["jump"] = int(j)
+        _, _, _, _, infos = env.step(a)
+        ys.append(infos[agent]["pos"][1] - y0)
+    heights, states = camera_lib.jump_ticks(jnp.asarray(jumps)[None, None], jnp.zeros((1, 1, 2)))
+    assert heights.shape == (1, 1, len(jumps)) and states.shape == (1, 1, len(jumps), 2)
+    np.testing.assert_allclose(np.asarray(heights[0, 0]), ys, atol=2e-3)
+    assert max(ys) > 1.2 and ys[11] == pytest.approx(0.0, abs=1e-3)  # a jump peaks at ~1.25 and lasts 12 ticks
+
+
+def test_frame_lifts_mean_heights_and_carried_state():
+    k, frames = 4, 5
+    kb = np.zeros((2, 2, 8 + k * frames, 23), np.float32)
+    kb[0, 0, :, camera_lib._JUMP] = 1.0  # held through the padding and every frame
+    kb[1, 1, 8 + k:8 + k + 1, camera_lib._JUMP] = 1.0  # one tap in frame 1
+    lift, after = camera_lib.frame_lifts(jnp.asarray(kb), frames, k)
+    heights, _ = camera_lib.jump_ticks(jnp.asarray(kb[..., 8:, camera_lib._JUMP]), jnp.zeros((2, 2, 2)))
+    means = np.asarray(heights).reshape(2, 2, frames, k).mean(-1)
+    np.testing.assert_allclose(lift[..., 1], means, atol=1e-6)
+    np.testing.assert_allclose(lift[..., 0], np.concatenate([np.zeros((2, 2, 1)), means[..., :-1]], -1), atol=1e-6)
+    assert float(lift[0, 1].max()) == 0.0 and float(lift[1, 1, 1, 1]) > 0.5 and float(lift[1, 1, 0, 1]) == 0.0
+    # frame by frame with the state carried (a rollout's cache) == the whole clip at once
+    state = None
+    for f in range(frames):
+        window = jnp.asarray(kb[:, :, k * f:k * f + 12])
+        one, after_f = camera_lib.frame_lifts(window, 1, k, state)
+        np.testing.assert_allclose(one[:, :, 0], lift[:, :, f], atol=1e-6)
+        np.testing.assert_allclose(after_f[:, :, 0], after[:, :, f], atol=1e-6)
+        state = after_f[:, :, 0]
+    with pytest.raises(ValueError, match="jump key"):
+        camera_lib.frame_lifts(jnp.zeros((1, 1, 7, 23)), 2, 4)
+
+
+def test_walk_source_rising_moves_the_floor_only():
+    h = w = 8
+    moves = jnp.zeros((3, 2))
+    eyes = jnp.asarray([[1.0, 1.0], [1.0, 1.5], [1.5, 1.0]])
+    rows, cols = (np.asarray(a) for a in camera_lib.walk_source(h, w, moves, eyes))
+    grid_r, grid_c = np.meshgrid(np.arange(h), np.arange(w), indexing="ij")
+    np.testing.assert_allclose(rows[0], grid_r, atol=1e-5)
+    centre = (h - 1) / 2
+    # rising: a floor pixel came from nearer the horizon (the ground drops away below), v_src = v * H0 / H1
+    floor = slice(h // 2, h)
+    np.testing.assert_allclose(rows[1][floor] - centre, (grid_r[floor] - centre) / 1.5, atol=1e-5)
+    assert np.all(np.abs(rows[2][floor] - centre) > np.abs(grid_r[floor] - centre))  # falling: from further out
+    for i in (1, 2):  # the sky half and the columns stay
+        np.testing.assert_allclose(rows[i][:h // 2], grid_r[:h // 2], atol=1e-5)
+        np.testing.assert_allclose(cols[i], grid_c, atol=1e-5)
+    # with H0 = H1 = 1 the walk is the walk warp's
+    walk = jnp.asarray([[0.5, 0.3]])
+    np.testing.assert_allclose(camera_lib.walk_source(h, w, walk, jnp.ones((1, 2)))[0],
+                               camera_lib.walk_source(h, w, walk)[0], atol=1e-6)
+    x = jax.random.normal(jax.random.key(2), (3, h, w, 2))
+    out = camera_lib.walk_latents(x, moves, jnp.asarray([[1.3, 1.3], [1.0, 1.5], [1.0, 1.0]]))
+    np.testing.assert_array_equal(out[0], x[0])  # one height, no move: bit for bit
+    assert float(jnp.abs(out[1] - x[1]).max()) > 1e-3
+
+
+def test_jump_warp_config_and_cache():
+    with pytest.raises(ValueError, match="jump_warp"):
+        DiTConfig(jump_warp=0.6)  # no camera warp to carry it
+    with pytest.raises(ValueError, match="jump_warp"):
+        DiTConfig(camera_warp=WARP, jump_warp=-1.0)
+    cfg = _jumping(0)[0]
+    assert kv_cache.init_cache(cfg, 3).jump.shape == (3, 2, camera_lib.JUMP_STATE)
+    assert kv_cache.init_cache(_warp_cfg(), 1).jump is None
+
+
+def _jumping(seed: int):
+    cfg = _warp_cfg()
+    cfg = cfg.replace(dit=dataclasses.replace(cfg.dit, walk_warp=0.13, jump_warp=1 / 1.62, previous_skip=True))
+    return cfg, _build(cfg, seed=seed), _inputs(cfg, seed=seed)  # jump pressed on 30 % of the ticks
+
+
+def test_jump_warp_cached_rollout_equals_teacher_forcing_and_causal():
+    cfg, model, inp = _jumping(34)
+    out = _cached_rollout_agrees(cfg, model, inp)
+    want = camera_lib.frame_lifts(inp["keyboard"], inp["clean"].shape[2], cfg.frames_per_step)[1][:, :, -1]
+    np.testing.assert_allclose(out["cache"].jump, want, atol=1e-6)
+
+
+def test_jump_warp_changes_the_output_only_when_jumping():
+    from solaris_env.spaces import MODEL_INDEX
+    cfg, model, inp = _jumping(35)
+    flat = cfg.replace(dit=dataclasses.replace(cfg.dit, jump_warp=0.0))
+    model_flat = _build(flat, seed=35)
+    nnx.update(model_flat, nnx.state(model))
+    args = lambda i: (i["clean"], jnp.zeros_like(i["t"]), i["cond"], i["context"], i["mouse"], i["keyboard"])
+    grounded = dict(inp, keyboard=inp["keyboard"].at[..., MODEL_INDEX["jump"]].set(0.0))
+    np.testing.assert_allclose(causal_fn(model, *args(grounded)), causal_fn(model_flat, *args(grounded)),
+                               atol=1e-5, rtol=0)  # the same up to float rounding (other fused arithmetic)
+    held = dict(inp, keyboard=inp["keyboard"].at[..., MODEL_INDEX["jump"]].set(1.0))
+    delta = jnp.abs(causal_fn(model, *args(held)) - causal_fn(model_flat, *args(held))).max(axis=(0, 1, 3, 4, 5))
+    assert float(delta[1:].max()) > 1e-4, delta
