@@ -38,6 +38,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from solaris_env.world_model.camera import JUMP_STATE
 from solaris_env.world_model.config import WorldModelConfig
 
 
@@ -74,7 +75,7 @@ class DiTCache:
     # camera warp only (``DiTConfig.camera_warp``): (B, P, h, w, C) the last cached frame's latent (as the
     # commit pass got it), the next frame's previous latent; None otherwise
     latent: jax.Array | None = None
-    # jump warp only (``DiTConfig.jump_warp``): (B, P, ``camera.JUMP_STATE``) the jump state after the last cached
+    # jump warp only (``DiTConfig.jump_warp``): (B, P, ``JUMP_STATE``) the jump state after the last cached
     # frame (height, vertical velocity, that frame's mean height; ``camera.frame_lifts``); None otherwise
     jump: jax.Array | None = None
 
@@ -108,7 +109,7 @@ def init_cache(cfg: WorldModelConfig, batch: int, dtype=None) -> DiTCache:
 
     latent = (jnp.zeros((batch, players, cfg.latent_height, cfg.latent_width, cfg.out_channels), jnp.float32)
               if cfg.dit.camera_warp_enabled else None)
-    jump = jnp.zeros((batch, players, 3), jnp.float32) if cfg.dit.jump_warp else None  # on the floor
+    jump = jnp.zeros((batch, players, JUMP_STATE), jnp.float32) if cfg.dit.jump_warp else None  # on the floor
     return DiTCache(layers=tuple(layer() for _ in range(cfg.dit.num_layers)), latent=latent, jump=jump)
 
 

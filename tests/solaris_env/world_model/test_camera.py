@@ -387,12 +387,14 @@ def test_jump_ticks_follow_the_engine_on_flat_ground():
 
 
 def test_frame_lifts_mean_heights_and_carried_state():
+    from solaris_env.spaces import MODEL_INDEX
+    jump_key = MODEL_INDEX["jump"]
     k, frames = 4, 5
     kb = np.zeros((2, 2, 8 + k * frames, 23), np.float32)
-    kb[0, 0, :, camera_lib._JUMP] = 1.0  # held through the padding and every frame
-    kb[1, 1, 8 + k:8 + k + 1, camera_lib._JUMP] = 1.0  # one tap in frame 1
+    kb[0, 0, :, jump_key] = 1.0  # held through the padding and every frame
+    kb[1, 1, 8 + k:8 + k + 1, jump_key] = 1.0  # one tap in frame 1
     lift, after = camera_lib.frame_lifts(jnp.asarray(kb), frames, k)
-    heights, _ = camera_lib.jump_ticks(jnp.asarray(kb[..., 8:, camera_lib._JUMP]), jnp.zeros((2, 2, 2)))
+    heights, _ = camera_lib.jump_ticks(jnp.asarray(kb[..., 8:, jump_key]), jnp.zeros((2, 2, 2)))
     means = np.asarray(heights).reshape(2, 2, frames, k).mean(-1)
     np.testing.assert_allclose(lift[..., 1], means, atol=1e-6)
     np.testing.assert_allclose(lift[..., 0], np.concatenate([np.zeros((2, 2, 1)), means[..., :-1]], -1), atol=1e-6)
