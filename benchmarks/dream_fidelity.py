@@ -876,6 +876,26 @@ class WarpFormula:
         scale = (cfg.frame_height / cfg.latent_height, cfg.frame_width / cfg.latent_width)
         self.pixels_per_degree = (cfg.dit.camera_warp[0] * scale[0], cfg.dit.camera_warp[1] * scale[1])
 
+    def _step_fn(self):
+        """One step as one jitted call: (frame (H, W, 3), ticks (1, k, 25), jump state (1, 1, JUMP_STATE)) ->
+        (the next frame, the jump state carried on, as a rollout's cache carries it)."""
+        import jax
+
+        from solaris_env.world_model import camera
+
+        k, kb, dit = self.frames_per_step, self.cfg.action.keyboard_dim, self.cfg.dit
+
+        def step(frame_HW3, ticks_1kA, jump_113):
+            lift = None
+            if dit.jump_warp:
+                lift, after = camera.frame_lifts(ticks_1kA[None, ..., :kb], 1, k, jump_113)
+                lift, jump_113 = lift[0, 0], after[:, :, 0]
+            x = camera.warp_previous(frame_HW3[None], ticks_1kA[..., kb:], ticks_1kA[..., :kb], k,
+                                     self.pixels_per_degree, dit.walk_warp, dit.warp_interp, lift, dit.jump_warp)
+            return x[0], jump_113
+
+        return jax.jit(step)
+
     def rollout(self, rollout: Rollout) -> np.ndarray:
         """(T + 1, H, W, 3) uint8: the engine's first frame, then each step's frame warped from the last."""
         import jax.numpy as jnp
@@ -883,18 +903,14 @@ class WarpFormula:
         from solaris_env.dream_env import expand_action
         from solaris_env.world_model import camera
 
-        k, kb, dit = self.frames_per_step, self.cfg.action.keyboard_dim, self.cfg.dit
-        frames, pending, jump = [rollout.engine_THW3[0]], None, None
+        if not hasattr(self, "_step"):
+            self._step = self._step_fn()
+        frames, pending = [rollout.engine_THW3[0]], None
+        jump = jnp.zeros((1, 1, camera.JUMP_STATE), jnp.float32)  # on the floor
         for step in rollout.actions:
-            ticks_kA, pending = expand_action(step[LEARNER], k, pending, LEARNER)
-            ticks = jnp.asarray(ticks_kA)[None]  # (1, k, 25): one frame's action window
-            lift = None
-            if dit.jump_warp:  # the jump state carried from step to step, as a rollout's cache carries it
-                lift, after = camera.frame_lifts(ticks[None, ..., :kb], 1, k, jump)
-                lift, jump = lift[0, 0], after[:, :, 0]
-            x = camera.warp_previous(jnp.asarray(frames[-1])[None], ticks[..., kb:], ticks[..., :kb], k,
-                                     self.pixels_per_degree, dit.walk_warp, dit.warp_interp, lift, dit.jump_warp)
-            frames.append(np.clip(np.rint(np.asarray(x[0])), 0, 255).astype(np.uint8))
+            ticks_kA, pending = expand_action(step[LEARNER], self.frames_per_step, pending, LEARNER)
+            x, jump = self._step(jnp.asarray(frames[-1], jnp.float32), jnp.asarray(ticks_kA)[None], jump)
+            frames.append(np.clip(np.rint(np.asarray(x)), 0, 255).astype(np.uint8))
         return np.stack(frames)
 
 
