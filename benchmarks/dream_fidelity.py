@@ -863,9 +863,9 @@ FORMULA = "formula:warp"  # the reference row of the warps' formulas alone (``Wa
 class WarpFormula:
     """A reference row, not a world model: each frame is the previous one moved by the formulas the shipped
     model feeds its DiT (``DiTConfig.walk_warp`` and ``jump_warp``, then ``camera_warp``, with its
-    ``warp_interp``), applied to pixels from the engine's true first frame. It shows what the geometry alone gives on each program and
-    metric (a turn's new view is the edge repeated, the partner never moves, the HUD moves with the view), so
-    the model's rows can be read against it (docs/evaluation.md). Spec ``formula:warp``."""
+    ``warp_interp``), applied to pixels from the engine's true first frame. It shows what the geometry alone
+    gives on each program and metric (a turn's new view is the edge repeated, the partner never moves, the HUD
+    moves with the view), so the model's rows can be read against it (docs/evaluation.md). Spec ``formula:warp``."""
 
     def __init__(self, cfg):
         if not cfg.dit.camera_warp_enabled:
@@ -876,7 +876,8 @@ class WarpFormula:
         scale = (cfg.frame_height / cfg.latent_height, cfg.frame_width / cfg.latent_width)
         self.pixels_per_degree = (cfg.dit.camera_warp[0] * scale[0], cfg.dit.camera_warp[1] * scale[1])
 
-    def _step_fn(self):
+    @functools.cached_property
+    def _step(self):
         """One step as one jitted call: (frame (H, W, 3), ticks (1, k, 25), jump state (1, 1, JUMP_STATE)) ->
         (the next frame, the jump state carried on, as a rollout's cache carries it)."""
         import jax
@@ -903,8 +904,6 @@ class WarpFormula:
         from solaris_env.dream_env import expand_action
         from solaris_env.world_model import camera
 
-        if not hasattr(self, "_step"):
-            self._step = self._step_fn()
         frames, pending = [rollout.engine_THW3[0]], None
         jump = jnp.zeros((1, 1, camera.JUMP_STATE), jnp.float32)  # on the floor
         for step in rollout.actions:
