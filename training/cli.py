@@ -141,7 +141,8 @@ def cmd_sprint(args) -> int:
 
     paths = (None if v is None else Path(v) for v in (args.data, args.config, args.work))
     started = process_start_time() if args.whole_process else None  # the budget includes the imports
-    dest = run_sprint(SprintArgs(args.preset, Path(args.out), args.budget_min, args.init, *paths, started=started))
+    dest = run_sprint(SprintArgs(args.preset, Path(args.out), args.budget_min, args.init, *paths, started=started,
+                                 workers=args.workers))
     print(f"sprint: model written to {dest}; install it with `solaris-train install {dest}`")
     return 0
 
@@ -195,6 +196,9 @@ def build_parser() -> argparse.ArgumentParser:
                                                 "(default: WORK/data; episodes already there are used at once)")
     s.add_argument("--work", default=None, help="stage runs, latent cache (default: a temporary "
                                                 "directory, removed at the end)")
+    s.add_argument("--workers", type=int, default=None,
+                   help="background collect workers (default: the config's devices.<kind>.workers; 0 there = every "
+                        "core but two); two sprints side by side split the cores (training/gpu_call.sh)")
     s.set_defaults(func=cmd_sprint)
     w = sub.add_parser("with-decoder", help="a model with the VAE decoder of a vae-decoder stage (same encoder)")
     w.add_argument("model", help="a model/ directory (e.g. self-forcing/model)")

@@ -1,6 +1,7 @@
 """``solaris-train sprint``: a complete world model trained within a wall-clock budget, data made meanwhile.
 
     solaris-train sprint --preset tiny --out OUT --budget-min 8.5 [--init default|PATH] [--data DIR] [--config JSON]
+        [--workers N]
 
 One command for a borrowed accelerator (docs/training.md, "GPU sprint"): whatever ``jax.devices()`` holds
 (a GPU there, the CPU here) trains while the engine records episodes on the CPU cores.
@@ -446,12 +447,13 @@ class SprintArgs:
     config: Path | None = None  # default: training/configs/sprint-<preset>.json
     work: Path | None = None  # stage runs, latents; default: a temporary directory, removed after
     started: float | None = None  # epoch seconds the budget counts from (the CLI: the process's start); None: now
+    workers: int | None = None  # background collect workers; None: the config's devices.<kind>.workers
 
     def command(self) -> list[str]:
         cmd = ["solaris-train", "sprint", "--preset", self.preset, "--out", str(self.out),
                "--budget-min", f"{self.budget_min:g}"]
         for flag, value in (("--init", self.init), ("--data", self.data), ("--config", self.config),
-                            ("--work", self.work)):
+                            ("--work", self.work), ("--workers", self.workers)):
             if value is not None:
                 cmd += [flag, str(value)]
         return cmd
@@ -478,6 +480,8 @@ def run_sprint(args: SprintArgs) -> Path:
     t0 = time.time() if args.started is None else args.started
     if not args.budget_min > 0:
         raise ValueError(f"--budget-min must be > 0, got {args.budget_min}")
+    if args.workers is not None and args.workers < 1:
+        raise ValueError(f"--workers must be an integer >= 1 (or left out for the config's), got {args.workers}")
     cfg = SprintConfig.load(args.preset, args.config)
     if cfg.preset != args.preset:
         raise ValueError(f"sprint config {args.config} is for preset {cfg.preset!r}, --preset is {args.preset!r}")
@@ -535,6 +539,8 @@ class Sprint:
         self.run_dir = work / "run"
         self.platform = jax.devices()[0].platform
         self.device = cfg.device(self.platform)
+        if args.workers is not None:  # two sprints side by side share the machine's cores (training/gpu_call.sh)
+            self.device = dataclasses.replace(self.device, workers=args.workers)
         init_lineage = read_lineage(init) if init else None
         generation = (init_lineage or {}).get("generation", 0) + 1
         self.collect_block = dataclasses.replace(cfg.collect, seed=cfg.collect.seed + 1000 * (generation - 1))

@@ -280,3 +280,11 @@ def test_a_vae_sprint_from_scratch_records_its_first_step_speed_and_held_out_psn
     held_out = stage["held_out"]  # the test preset's VAE clips: 5 frames, 1 + 1 latents
     assert held_out["num_frames"] == 5 and len(held_out["test_psnr_by_latent_db"]) == 2
     assert 0 < held_out["test_psnr_db"] < 60
+
+
+def test_workers_must_be_positive(tmp_path):
+    from training.sprint import SprintArgs, run_sprint
+
+    with pytest.raises(ValueError, match="--workers must be an integer >= 1"):
+        run_sprint(SprintArgs("test", tmp_path / "out", 1.0, workers=0))
+    assert SprintArgs("test", tmp_path, 1.0, workers=3).command()[-2:] == ["--workers", "3"]
