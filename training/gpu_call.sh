@@ -32,20 +32,19 @@ export PYTHONPATH="$K/site:$PWD${PYTHONPATH:+:$PYTHONPATH}" PYTHONUNBUFFERED=1
 export XLA_PYTHON_CLIENT_MEM_FRACTION=${XLA_PYTHON_CLIENT_MEM_FRACTION:-0.45}
 cores=$(nproc)
 W=${SPRINT_WORKERS:-$(( cores > 5 ? (cores - 4) / 2 : 1 ))}
-data_args() { [ -n "${SPRINT_DATA:-}" ] && echo "--data $SPRINT_DATA/$1"; }
+main_data=() ctl_data=()
+[ -n "${SPRINT_DATA:-}" ] && main_data=(--data "$SPRINT_DATA/sprint") ctl_data=(--data "$SPRINT_DATA/control")
 
 minutes_left() { awk -v m="$MIN" -v s="$start" -v n="$(date +%s)" 'BEGIN { printf "%.3f", m - (n - s) / 60 }'; }
 
 mkdir -p "$OUT/sprint"
-# shellcheck disable=SC2046
 "$PY" -m training.cli sprint --preset "$PRESET" --init "$INIT" --out "$OUT/sprint" --budget-min "$(minutes_left)" \
-  --workers "$W" $(data_args sprint) > "$OUT/sprint/log.txt" 2>&1 &
+  --workers "$W" "${main_data[@]}" > "$OUT/sprint/log.txt" 2>&1 &
 main=$!
 (
   "$PY" -m training.cli official-dit "$INIT" --out "$K/control-init" || exit $?
-  # shellcheck disable=SC2046
   exec "$PY" -m training.cli sprint --preset "$PRESET" --init "$K/control-init" --out "$K/control" \
-    --budget-min "$(minutes_left)" --workers "$W" $(data_args control)
+    --budget-min "$(minutes_left)" --workers "$W" "${ctl_data[@]}"
 ) > "$K/control.log" 2>&1 &
 ctl=$!
 wait "$main"; rc=$?
@@ -56,7 +55,8 @@ pack() {  # $1: a run folder holding model/ and log.txt -> its shards + meta.tar
   tar -C "$1" -cf "$1/meta.tar" log.txt model/config.json model/lineage.json \
     && rm -f "$1/log.txt" "$1/model/config.json" "$1/model/lineage.json"
 }
-if [ "$crc" -eq 0 ] && [ -d "$K/control/model" ]; then
+# only two finished models fit the 8 files packed; otherwise the candidate's folder stays as it is
+if [ "$rc" -eq 0 ] && [ "$crc" -eq 0 ] && [ -d "$K/control/model" ]; then
   mkdir -p "$OUT/control" && mv "$K/control/model" "$OUT/control/model" && cp "$K/control.log" "$OUT/control/log.txt" \
     && pack "$OUT/control" && pack "$OUT/sprint"
 fi

@@ -305,13 +305,10 @@ REPO = Path(__file__).resolve().parents[2]
 
 
 @pytest.mark.slow
-def test_gpu_call_returns_the_candidate_and_the_control_packed(tiny_duet, tmp_path):
-    from solaris_env.world_model.components import COMPONENTS
+def test_gpu_call_returns_the_candidate_and_the_control_packed(tiny_duet, test_model, tmp_path):
     from solaris_env.world_model.world_model import WorldModel
 
-    init_model = WorldModel.from_preset("test", seed=0)
-    init = checkpoint.save(tmp_path / "init", init_model.config, dict(zip(COMPONENTS, init_model.params)),
-                           storage_dtype="float16")
+    init = checkpoint.save(tmp_path / "init", test_model.config, _params(test_model), storage_dtype="float16")
     for run in ("sprint", "control"):  # seeded with recorded episodes, so both train at once
         shutil.copytree(tiny_duet / "duet", tmp_path / "data" / run / "duet")
     out = tmp_path / "out"
@@ -337,7 +334,7 @@ def test_gpu_call_returns_the_candidate_and_the_control_packed(tiny_duet, tmp_pa
         assert "--workers" in lineage["command"] and [s["status"] for s in lineage["stages"]].count("ran") == 1
         models[run] = WorldModel.load(out / run / "model")
     # the control kept the init's codec bit for bit and trained a fresh DiT of its own
-    vae = [np.asarray(x) for x in _component_leaves(init_model, "vae")]
+    vae = [np.asarray(x) for x in _component_leaves(test_model, "vae")]
     for run, model in models.items():
         for a, b in zip(vae, [np.asarray(x) for x in _component_leaves(model, "vae")]):
             np.testing.assert_array_equal(a.astype(np.float16), b.astype(np.float16))
@@ -348,6 +345,4 @@ def test_gpu_call_returns_the_candidate_and_the_control_packed(tiny_duet, tmp_pa
 def _component_leaves(model, component: str):
     import jax
 
-    from solaris_env.world_model.components import COMPONENTS
-
-    return jax.tree.leaves(dict(zip(COMPONENTS, model.params))[component])
+    return jax.tree.leaves(_params(model)[component])
