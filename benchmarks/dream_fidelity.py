@@ -892,7 +892,8 @@ class WarpFormula:
                 lift, after = camera.frame_lifts(ticks_1kA[None, ..., :kb], 1, k, jump_113)
                 lift, jump_113 = lift[0, 0], after[:, :, 0]
             x = camera.warp_previous(frame_HW3[None], ticks_1kA[..., kb:], ticks_1kA[..., :kb], k,
-                                     self.pixels_per_degree, dit.walk_warp, dit.warp_interp, lift, dit.jump_warp)
+                                     self.pixels_per_degree, dit.walk_warp, dit.warp_interp, lift, dit.jump_warp,
+                                     dit.warp_geometry)
             return x[0], jump_113
 
         return jax.jit(step)

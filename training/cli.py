@@ -24,7 +24,7 @@ import sys
 from pathlib import Path
 
 from solaris_env.cli_support import add_debug_flag, run_command
-from solaris_env.world_model.config import WARP_INTERPOLATIONS
+from solaris_env.world_model.config import WARP_GEOMETRIES, WARP_INTERPOLATIONS
 from training.collect import collect_if_missing
 from training.stage_config import (
     STAGES,
@@ -125,7 +125,8 @@ def cmd_action_conditioning(args) -> int:
     from training.surgery import with_action_conditioning
     dest = with_action_conditioning(args.model, args.out, args.mouse_gain, camera_warp=args.camera_warp,
                                     walk_warp=args.walk_warp, previous_skip=args.previous_skip or None,
-                                    warp_interp=args.warp_interp, jump_warp=args.jump_warp)
+                                    warp_interp=args.warp_interp, jump_warp=args.jump_warp,
+                                    warp_geometry=args.warp_geometry)
     print(f"wrote {dest}")
     return 0
 
@@ -243,6 +244,10 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--warp-interp", choices=WARP_INTERPOLATIONS, default=None,
                    help="set DiTConfig.warp_interp, how the camera warp samples between latent pixels (the "
                         "weights are kept; docs/model.md 8.1)")
+    g.add_argument("--warp-geometry", choices=WARP_GEOMETRIES, default=None,
+                   help="set DiTConfig.warp_geometry, what a camera turn does to the warped previous latent: "
+                        "'shift' (uniform) or 'rotation' (the camera's rotation; the weights are kept; docs/model.md "
+                        "8.1)")
     g.add_argument("--out", required=True, help="the new model directory")
     g.set_defaults(func=cmd_action_conditioning)
     o = sub.add_parser("official-dit", help="a model's VAE and image encoder under a fresh DiT in the official "

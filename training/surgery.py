@@ -111,7 +111,8 @@ def with_vae(model: str | Path, vae_from: str | Path, dest: str | Path) -> Path:
 def with_action_conditioning(model: str | Path, dest: str | Path, mouse_input_gain: float | None = None,
                              camera_warp: tuple[float, float] | None = None,
                              walk_warp: float | None = None, previous_skip: bool | None = None,
-                             warp_interp: str | None = None, jump_warp: float | None = None) -> Path:
+                             warp_interp: str | None = None, jump_warp: float | None = None,
+                             warp_geometry: str | None = None) -> Path:
     """Write ``model`` under another action conditioning, computing the same function (None keeps a setting):
 
     * ``mouse_input_gain``: the mouse rows of every ``mouse_mlp`` first kernel scaled by old / new gain, so
@@ -127,7 +128,10 @@ def with_action_conditioning(model: str | Path, dest: str | Path, mouse_input_ga
     * ``previous_skip=True``: turns on ``DiTConfig.previous_skip`` with its gates at zero (needs the camera warp,
       given or already on); from a model that has it, its trained gates are kept;
     * ``warp_interp``: sets ``DiTConfig.warp_interp`` (how the camera warp samples between latent pixels); the
-      weights are kept, the function changes wherever the camera turns by a fraction of a latent pixel.
+      weights are kept, the function changes wherever the camera turns by a fraction of a latent pixel;
+    * ``warp_geometry``: sets ``DiTConfig.warp_geometry`` (what a turn does to the warped previous latent: a
+      uniform shift or the camera's rotation); the weights are kept, the function changes wherever the camera
+      turns.
     """
     base = WorldModel.load(model)
     old = base.config
@@ -143,6 +147,8 @@ def with_action_conditioning(model: str | Path, dest: str | Path, mouse_input_ga
         dit = dataclasses.replace(dit, previous_skip=bool(previous_skip))
     if warp_interp is not None:
         dit = dataclasses.replace(dit, warp_interp=warp_interp)
+    if warp_geometry is not None:
+        dit = dataclasses.replace(dit, warp_geometry=warp_geometry)
     if old.dit.previous_skip and not dit.previous_skip:
         raise ValueError(f"{model} was trained with previous_skip; dropping it would drop its trained skip gates")
     if old.dit.camera_warp_enabled and not dit.camera_warp_enabled:

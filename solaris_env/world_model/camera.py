@@ -21,7 +21,7 @@ import jax
 import jax.numpy as jnp
 
 from solaris_env.spaces import CAMERA_SCALE_DEG, MODEL_INDEX
-from solaris_env.world_model.config import WARP_INTERPOLATIONS
+from solaris_env.world_model.config import WARP_GEOMETRIES, WARP_INTERPOLATIONS
 
 
 def frame_turns(mouse_BPFWA: jax.Array, frames_per_step: int) -> jax.Array:
@@ -221,13 +221,89 @@ def frame_lifts(keyboard_BPTK: jax.Array, num_frames: int, frames_per_step: int,
 
 def warp_previous(prev_NhwC: jax.Array, mouse_NWA: jax.Array, keyboard_NWK: jax.Array, frames_per_step: int,
                   pixels_per_degree: tuple[float, float], walk_warp: float, interp: str,
-                  lift_N2: jax.Array | None = None, jump_warp: float = 0.0) -> jax.Array:
+                  lift_N2: jax.Array | None = None, jump_warp: float = 0.0, geometry: str = "shift") -> jax.Array:
     """Each frame moved by its action window: by its walk (``walk_latents``, ``walk_warp`` eye heights per tick;
     0 = no walk) and its jump (``lift_N2`` [previous, this] heights in blocks from ``frame_lifts``, times
-    ``jump_warp`` eye heights per block; 0 = no jump), then by its camera turn (``shift_latents``).
-    ``prev_NhwC`` float, one action window per frame."""
+    ``jump_warp`` eye heights per block; 0 = no jump), then by its camera turn (``geometry``: "shift",
+    ``shift_latents``, or "rotation", ``turn_latents``). ``prev_NhwC`` float, one action window per frame."""
     x = prev_NhwC.astype(jnp.float32)
     eyes = None if not jump_warp or lift_N2 is None else 1.0 + jump_warp * lift_N2.astype(jnp.float32)
     if walk_warp or eyes is not None:
         x = walk_latents(x, frame_moves(keyboard_NWK, frames_per_step) * walk_warp, eyes)
-    return shift_latents(x, content_shift(frame_turns(mouse_NWA, frames_per_step), pixels_per_degree), interp)
+    turns = frame_turns(mouse_NWA, frames_per_step)
+    if geometry == "rotation":
+        return turn_latents(x, turns, pixels_per_degree, interp)
+    if geometry != "shift":
+        raise ValueError(f"geometry must be one of {WARP_GEOMETRIES}, got {geometry!r}")
+    return shift_latents(x, content_shift(turns, pixels_per_degree), interp)
+
+
+# ---------------------------------------------------------------------------------------------
+# Turning as a rotation (``DiTConfig.warp_geometry = "rotation"``, docs/model.md §8.1)
+# ---------------------------------------------------------------------------------------------
+
+
+def view_tangents(h: int, w: int, pixels_per_degree: tuple[float, float]) -> tuple[float, float]:
+    """(tan of half the vertical field of view, tan of half the horizontal one) of the pinhole camera whose
+    content moves ``pixels_per_degree`` (height, width) pixels per degree of turn at the centre of an h x w view:
+    a ray at screen position u in [-1, 1] has tangent u * tan_half, so d(pixels)/d(radians) at u = 0 is
+    (size / 2) / tan_half. The tiny16 warp (0.1996, 0.1122) on 16 x 16 latents gives 0.700 and 1.244: the
+    engine's 70-degree vertical field of view shown 16:9 (tan 35 deg = 0.700, x 16 / 9 = 1.245)."""
+    per_radian = [float(p) * 180.0 / math.pi for p in pixels_per_degree]
+    return (h / 2) / per_radian[0], (w / 2) / per_radian[1]
+
+
+def turn_source(h: int, w: int, turns_N2: jax.Array, pixels_per_degree: tuple[float, float]) -> tuple[jax.Array, jax.Array]:
+    """(row, col), each (N, h, w) float32: where in the previous frame each pixel of the turned view looks, for
+    turns_N2 [left, up] degrees (the mouse convention; ``frame_turns``): the camera's ray through the pixel
+    centre, rotated back by the pitch (about the camera's right axis) and then the yaw (about the vertical),
+    projected onto the previous view (``view_tangents``). Pixel centres are at index + 0.5; no turn gives each
+    pixel its own index. Rays that end up behind the camera are sent far outside the frame (edge values)."""
+    tan_v, tan_h = view_tangents(h, w, pixels_per_degree)
+    turns = turns_N2.astype(jnp.float32)
+    n = turns.shape[0]
+    rx = jnp.broadcast_to(((jnp.arange(w, dtype=jnp.float32) + 0.5) / w * 2 - 1)[None, None, :] * tan_h, (n, h, w))
+    ry = jnp.broadcast_to((1 - (jnp.arange(h, dtype=jnp.float32) + 0.5) / h * 2)[None, :, None] * tan_v, (n, h, w))
+    yaw_right = jnp.radians(-turns[:, 0])[:, None, None]
+    pitch_down = jnp.radians(-turns[:, 1])[:, None, None]
+    ry2 = ry * jnp.cos(pitch_down) - jnp.sin(pitch_down)
+    rz2 = ry * jnp.sin(pitch_down) + jnp.cos(pitch_down)
+    ox = rx * jnp.cos(yaw_right) + rz2 * jnp.sin(yaw_right)
+    oz = -rx * jnp.sin(yaw_right) + rz2 * jnp.cos(yaw_right)
+    ahead = oz > 1e-3
+    oz = jnp.where(ahead, oz, 1.0)
+    u = jnp.where(ahead, ox / (oz * tan_h), 1e3)
+    v = jnp.where(ahead, ry2 / (oz * tan_v), 1e3)
+    return (1 - v) / 2 * h - 0.5, (u + 1) / 2 * w - 0.5
+
+
+def turn_latents(x_NhwC: jax.Array, turns_N2: jax.Array, pixels_per_degree: tuple[float, float],
+                 interp: str = "linear") -> jax.Array:
+    """Each latent frame as the turned camera sees it: sampled at ``turn_source`` (bilinear, or bicubic with the
+    Catmull-Rom weights of ``interp = "cubic"``) on the frame extended by repeating its edges, as
+    ``shift_latents`` does. No turn returns the frame; at the view's centre it moves as ``shift_latents`` with
+    the same pixels per degree."""
+    if x_NhwC.ndim != 4 or turns_N2.shape != (x_NhwC.shape[0], 2):
+        raise ValueError(f"turn_latents takes x (N, h, w, C) and turns (N, 2); got {x_NhwC.shape}, {turns_N2.shape}")
+    if interp not in WARP_INTERPOLATIONS:
+        raise ValueError(f"interp must be one of {WARP_INTERPOLATIONS}, got {interp!r}")
+    _, h, w, _ = x_NhwC.shape
+    row, col = turn_source(h, w, turns_N2, pixels_per_degree)
+    r0, c0 = jnp.floor(row), jnp.floor(col)
+    fr, fc = row - r0, col - c0
+    if interp == "cubic":
+        taps, wr, wc = (-1, 0, 1, 2), _cubic_weights(fr), _cubic_weights(fc)
+    else:
+        taps, wr, wc = (0, 1), (1 - fr, fr), (1 - fc, fc)
+    r0, c0 = r0.astype(jnp.int32), c0.astype(jnp.int32)
+
+    def one(x_hwC, r0_hw, c0_hw, wr_Thw, wc_Thw):
+        out = jnp.zeros(x_hwC.shape, jnp.float32)
+        for a, da in enumerate(taps):
+            rows = jnp.clip(r0_hw + da, 0, h - 1)
+            for b, db in enumerate(taps):
+                cols = jnp.clip(c0_hw + db, 0, w - 1)
+                out = out + (wr_Thw[a] * wc_Thw[b])[..., None] * x_hwC[rows, cols]
+        return out
+
+    return jax.vmap(one)(x_NhwC.astype(jnp.float32), r0, c0, jnp.stack(wr, 1), jnp.stack(wc, 1))

@@ -18,6 +18,7 @@ MULTIPLAYER_METHODS = ("attn", "concat")
 COND_ENCODINGS = ("video", "image")
 VAE_CODECS = ("wan", "linear_patch")
 WARP_INTERPOLATIONS = ("linear", "cubic")  # how the camera warp samples between latent pixels (DiTConfig.warp_interp)
+WARP_GEOMETRIES = ("shift", "rotation")  # how the camera warp moves the previous latent (DiTConfig.warp_geometry)
 
 
 def _require(cond: bool, msg: str) -> None:
@@ -71,6 +72,11 @@ class DiTConfig:
     # How the camera warp samples between latent pixels: "linear", or "cubic" (Catmull-Rom), which blurs less
     # when a rollout shifts its own frames step after step (``camera.shift_latents``; docs/model.md §8.1).
     warp_interp: str = "linear"
+    # What a camera turn does to the previous latent: "shift", every cell by the same camera_warp pixels per degree,
+    # or "rotation", the rotation homography of a pinhole camera whose field of view makes camera_warp the speed
+    # at the view's centre (``camera.turn_source``): cells away from the centre move faster, up to ~2.5x at the
+    # side edges for the engine's 102-degree-wide view, and rows bend (docs/model.md §8.1).
+    warp_geometry: str = "shift"
 
     def __post_init__(self):
         _require(self.dim % self.num_heads == 0, f"dim={self.dim} must be divisible by num_heads={self.num_heads}")
@@ -88,6 +94,11 @@ class DiTConfig:
                  f"jump_warp={self.jump_warp} moves the camera warp's input; it needs camera_warp on")
         _require(self.warp_interp in WARP_INTERPOLATIONS,
                  f"warp_interp must be one of {WARP_INTERPOLATIONS}, got {self.warp_interp!r}")
+        _require(self.warp_geometry in WARP_GEOMETRIES,
+                 f"warp_geometry must be one of {WARP_GEOMETRIES}, got {self.warp_geometry!r}")
+        _require(self.warp_geometry == "shift" or all(c > 0 for c in self.camera_warp),
+                 f"warp_geometry={self.warp_geometry!r} reads the field of view from camera_warp; it needs both "
+                 f"its (height, width) pixels per degree > 0, got {self.camera_warp}")
         _require(not self.previous_skip or self.camera_warp_enabled,
                  f"previous_skip={self.previous_skip} adds the camera warp's previous latent; it needs camera_warp on")
         _require(self.head_dim % 2 == 0, f"head_dim={self.head_dim} must be even for RoPE")

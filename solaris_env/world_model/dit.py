@@ -625,7 +625,8 @@ class WorldDiT(nnx.Module):
         lift = None if lift_BPF2 is None else lift_BPF2.reshape(-1, 2)
         return camera_lib.warp_previous(flat(prev_BPFhwC), flat(mouse_BPFWA), flat(keyboard_BPFWA),
                                         self.cfg.frames_per_step, dit.camera_warp, dit.walk_warp,
-                                        dit.warp_interp, lift, dit.jump_warp).reshape(lead + prev_BPFhwC.shape[3:])
+                                        dit.warp_interp, lift, dit.jump_warp,
+                                        dit.warp_geometry).reshape(lead + prev_BPFhwC.shape[3:])
 
     def _cached_previous(self, x, cache: kv_cache.DiTCache):
         """Previous latents of the F new frames of a cached pass: the cache's last frame, then x's own."""

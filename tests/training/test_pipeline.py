@@ -270,6 +270,14 @@ def test_camera_warp_retrofit_computes_the_same(run, tmp_path):
     assert cubist.config.replace(dit=skipper.config.dit) == skipper.config
     assert all(np.array_equal(np.asarray(a), np.asarray(b))
                for a, b in zip(jax.tree.leaves(cubist.params), jax.tree.leaves(skipper.params)))
+    # and so is its geometry (test_camera.py checks the rotation itself)
+    rot = tmp_path / "rot"
+    assert cli.main(["action-conditioning", str(cubic), "--warp-geometry", "rotation", "--out", str(rot)]) == 0
+    rotor = WorldModel.load(rot)
+    assert rotor.config.dit.warp_geometry == "rotation" and cubist.config.dit.warp_geometry == "shift"
+    assert rotor.config.replace(dit=cubist.config.dit) == cubist.config
+    assert all(np.array_equal(np.asarray(a), np.asarray(b))
+               for a, b in zip(jax.tree.leaves(rotor.params), jax.tree.leaves(cubist.params)))
     # the jump warp too: the weights kept, the same frames; the streaming state carries the simulated jump from
     # step to step (test_camera.py checks that a trained warp reads it)
     jump = tmp_path / "jump"

@@ -472,3 +472,115 @@ def test_jump_warp_changes_the_output_only_when_jumping():
     held = dict(inp, keyboard=inp["keyboard"].at[..., MODEL_INDEX["jump"]].set(1.0))
     delta = jnp.abs(causal_fn(model, *args(held)) - causal_fn(model_flat, *args(held))).max(axis=(0, 1, 3, 4, 5))
     assert float(delta[1:].max()) > 1e-4, delta
+
+
+# ---------------------------------------------------------------------------------------------
+# Turning as a rotation (warp_geometry = "rotation")
+# ---------------------------------------------------------------------------------------------
+
+TINY16_WARP = (0.1996, 0.1122)  # the shipped default's camera warp on its 16 x 16 latents
+
+
+def _reference_source(h: int, w: int, left_deg: float, up_deg: float, tan_v: float, tan_h: float):
+    """Where each pixel of the turned view looks in the previous view, with rotation matrices: the camera turned
+    left by ``left_deg`` about the world's vertical, then up by ``up_deg`` about its own right axis; a pixel's ray
+    in the new camera, expressed in the old camera's frame, projected (x right, y up, z ahead)."""
+    a, b = np.radians(left_deg), np.radians(up_deg)
+    yaw = np.array([[np.cos(a), 0, -np.sin(a)], [0, 1, 0], [np.sin(a), 0, np.cos(a)]])  # turn left: +x goes ahead
+    pitch = np.array([[1, 0, 0], [0, np.cos(b), np.sin(b)], [0, -np.sin(b), np.cos(b)]])  # look up
+    u = (np.arange(w) + 0.5) / w * 2 - 1
+    v = 1 - (np.arange(h) + 0.5) / h * 2
+    rays = np.stack(np.broadcast_arrays(u[None, :] * tan_h, v[:, None] * tan_v, np.ones((h, w))), -1)
+    old = rays @ (yaw @ pitch).T
+    su, sv = old[..., 0] / old[..., 2] / tan_h, old[..., 1] / old[..., 2] / tan_v
+    return (1 - sv) / 2 * h - 0.5, (su + 1) / 2 * w - 0.5
+
+
+def test_view_tangents_read_the_engines_field_of_view_from_the_warp():
+    """The shipped warp's pixels per degree at the centre are those of the engine's camera: 70 degrees vertical,
+    shown 16:9 in the square frame."""
+    tan_v, tan_h = camera_lib.view_tangents(16, 16, TINY16_WARP)
+    assert tan_v == pytest.approx(np.tan(np.radians(35.0)), rel=2e-3)
+    assert tan_h == pytest.approx(np.tan(np.radians(35.0)) * 16 / 9, rel=2e-3)
+
+
+@pytest.mark.parametrize("left, up", [(15.0, 0.0), (-5.0, 0.0), (0.0, 8.0), (0.0, -12.0), (10.0, -6.0), (-30.0, 25.0)])
+def test_turn_source_is_the_cameras_rotation(left, up):
+    h, w = 12, 16
+    tan_v, tan_h = camera_lib.view_tangents(h, w, TINY16_WARP)
+    row, col = camera_lib.turn_source(h, w, jnp.asarray([[left, up]]), TINY16_WARP)
+    ref_row, ref_col = _reference_source(h, w, left, up, tan_v, tan_h)
+    np.testing.assert_allclose(row[0], ref_row, atol=2e-3)
+    np.testing.assert_allclose(col[0], ref_col, atol=2e-3)
+
+
+def test_turn_source_moves_the_centre_as_the_shift_and_the_sides_faster():
+    """No turn: every pixel reads itself. A small turn moves the view's centre by the warp's pixels per degree
+    (the uniform shift's speed); a yaw moves the side columns ~2.5x faster on the engine's 102-degree-wide view."""
+    h = w = 16
+    row, col = camera_lib.turn_source(h, w, jnp.zeros((1, 2)), TINY16_WARP)
+    np.testing.assert_allclose(row[0], np.broadcast_to(np.arange(h)[:, None], (h, w)), atol=1e-5)
+    np.testing.assert_allclose(col[0], np.broadcast_to(np.arange(w)[None, :], (h, w)), atol=1e-5)
+    d = 0.01
+    row, col = camera_lib.turn_source(64, 64, jnp.asarray([[d, 0.0], [0.0, d]]), TINY16_WARP)
+    shift_w = (31.5 - float(col[0, 32, 31] + col[0, 32, 32]) / 2) / d  # content moves right = source moves left
+    shift_h = (31.5 - float(row[1, 31, 32] + row[1, 32, 32]) / 2) / d
+    assert shift_w == pytest.approx(TINY16_WARP[1], rel=1e-2) and shift_h == pytest.approx(TINY16_WARP[0], rel=1e-2)
+    row, col = camera_lib.turn_source(h, w, jnp.asarray([[5.0, 0.0]]), TINY16_WARP)
+    centre, side = 7.5 - float(col[0, 8, 7] + col[0, 8, 8]) / 2, float(-col[0, 8, 0])
+    assert centre == pytest.approx(5 * TINY16_WARP[1], rel=0.02) and 2.2 < side / centre < 2.8
+
+
+@pytest.mark.parametrize("interp", ["linear", "cubic"])
+def test_turn_latents_samples_the_source_on_the_edge_extended_frame(interp):
+    """No turn returns the frame; a turn equals sampling the frame (edges repeated) at ``turn_source`` with the
+    interpolation's separable weights, computed here pixel by pixel."""
+    x = np.asarray(jax.random.normal(jax.random.key(7), (2, 6, 8, 3)))
+    turns = jnp.asarray([[0.0, 0.0], [12.0, -7.0]])
+    out = np.asarray(camera_lib.turn_latents(jnp.asarray(x), turns, WARP, interp))
+    np.testing.assert_allclose(out[0], x[0], atol=1e-6)
+    row, col = (np.asarray(a[1]) for a in camera_lib.turn_source(6, 8, turns, WARP))
+    taps = (-1, 0, 1, 2) if interp == "cubic" else (0, 1)
+
+    def weights(t):
+        return np.asarray(camera_lib._cubic_weights(t)) if interp == "cubic" else np.array([1 - t, t])
+
+    for r in range(6):
+        for c in range(8):
+            r0, c0 = int(np.floor(row[r, c])), int(np.floor(col[r, c]))
+            wr, wc = weights(row[r, c] - r0), weights(col[r, c] - c0)
+            ref = sum(wr[a] * wc[b] * x[1, np.clip(r0 + da, 0, 5), np.clip(c0 + db, 0, 7)]
+                      for a, da in enumerate(taps) for b, db in enumerate(taps))
+            np.testing.assert_allclose(out[1, r, c], ref, atol=1e-5)
+
+
+def test_warp_geometry_config():
+    assert DiTConfig().warp_geometry == "shift"
+    with pytest.raises(ValueError, match="warp_geometry"):
+        DiTConfig(camera_warp=WARP, warp_geometry="fisheye")
+    with pytest.raises(ValueError, match="warp_geometry"):
+        DiTConfig(camera_warp=(0.0, 0.1), warp_geometry="rotation")  # no vertical field of view to read
+    assert DiTConfig(camera_warp=WARP, warp_geometry="rotation").warp_geometry == "rotation"
+
+
+def _rotating(seed: int):
+    cfg = _warp_cfg()
+    cfg = cfg.replace(dit=dataclasses.replace(cfg.dit, warp_geometry="rotation", previous_skip=True))
+    return cfg, _build(cfg, seed=seed), _turning(cfg, seed)[2]
+
+
+def test_rotation_warp_cached_rollout_equals_teacher_forcing_and_causal():
+    _cached_rollout_agrees(*_rotating(34))
+
+
+def test_rotation_warp_changes_the_output_only_when_turning():
+    """The same weights under both geometries: equal outputs without a turn, different ones with a turn."""
+    cfg, model, inp = _rotating(35)
+    shift = cfg.replace(dit=dataclasses.replace(cfg.dit, warp_geometry="shift"))
+    model_shift = _build(shift, seed=35)
+    nnx.update(model_shift, nnx.state(model))
+    args = lambda i: (i["clean"], jnp.zeros_like(i["t"]), i["cond"], i["context"], i["mouse"], i["keyboard"])
+    delta = jnp.abs(causal_fn(model, *args(inp)) - causal_fn(model_shift, *args(inp))).max(axis=(0, 1, 3, 4, 5))
+    assert float(delta[0]) == 0.0 and float(delta[1:].min()) > 1e-4, delta  # frame 0 has no previous frame
+    still = dict(inp, mouse=jnp.zeros_like(inp["mouse"]))
+    np.testing.assert_allclose(causal_fn(model, *args(still)), causal_fn(model_shift, *args(still)), atol=1e-6)
