@@ -173,14 +173,14 @@ def with_action_conditioning(model: str | Path, dest: str | Path, mouse_input_ga
 def official_dit(model: str | Path, dest: str | Path, seed: int = 0) -> Path:
     """Write ``model``'s VAE and image encoder, unchanged, with a freshly initialised DiT (``seed``) in the
     official layout to ``dest``: our options at their official values (``DiTConfig.camera_warp``,
-    ``walk_warp``, ``jump_warp`` and ``previous_skip`` off, ``warp_interp`` linear,
+    ``walk_warp``, ``jump_warp`` and ``previous_skip`` off, ``warp_interp`` linear, ``warp_geometry`` shift,
     ``ActionConfig.mouse_input_gain`` 1, and the sampler's ``noise_warp`` 0, fresh noise: it moves the noise with
     the camera warp), every size as ``model``'s. Trained through the DiT stages with the same steps and data as
     ``model``'s DiT, it is the control that measures those options (docs/training.md, "The control row")."""
     base = WorldModel.load(model_directory(model))
     old = base.config
     dit = dataclasses.replace(old.dit, camera_warp=(0.0, 0.0), walk_warp=0.0, jump_warp=0.0,
-                              previous_skip=False, warp_interp="linear")
+                              previous_skip=False, warp_interp="linear", warp_geometry="shift")
     cfg = old.replace(dit=dit, action=dataclasses.replace(old.action, mouse_input_gain=1.0),
                       sampler=dataclasses.replace(old.sampler, noise_warp=0.0))
     fresh_dit, _, _ = WorldModel.from_config(cfg, seed=seed).params

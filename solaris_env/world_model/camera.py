@@ -11,6 +11,8 @@ latent frames i - 1 and i; docs/model.md §4.3), ``content_shift`` how far it mo
 cubic interpolation, ``DiTConfig.warp_interp``, of the frame extended by repeating its edges):
 ``DiTConfig.camera_warp`` feeds the previous latent frame shifted by the frame's turn to the patch embedding, so
 following the camera is a copy of an input channel instead of a sub-token interpolation the DiT has to learn.
+With ``DiTConfig.warp_geometry = "rotation"`` the turn resamples the latent through the camera's rotation instead
+(``turn_source``, ``turn_latents``: the view's sides move faster than its centre; docs/model.md §8.1).
 """
 
 from __future__ import annotations
