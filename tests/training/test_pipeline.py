@@ -262,22 +262,20 @@ def test_camera_warp_retrofit_computes_the_same(run, tmp_path):
         with_action_conditioning(src, tmp_path / "noskip", previous_skip=True)  # no camera warp to read
     with pytest.raises(ValueError, match="previous_skip"):
         with_action_conditioning(skip, tmp_path / "drop", previous_skip=False)
-    # the warp's interpolation is a config setting: the weights are kept, bit for bit
-    cubic = tmp_path / "cubic"
-    assert cli.main(["action-conditioning", str(skip), "--warp-interp", "cubic", "--out", str(cubic)]) == 0
-    cubist = WorldModel.load(cubic)
-    assert cubist.config.dit.warp_interp == "cubic" and skipper.config.dit.warp_interp == "linear"
-    assert cubist.config.replace(dit=skipper.config.dit) == skipper.config
-    assert all(np.array_equal(np.asarray(a), np.asarray(b))
-               for a, b in zip(jax.tree.leaves(cubist.params), jax.tree.leaves(skipper.params)))
-    # and so is its geometry (test_camera.py checks the rotation itself)
-    rot = tmp_path / "rot"
-    assert cli.main(["action-conditioning", str(cubic), "--warp-geometry", "rotation", "--out", str(rot)]) == 0
-    rotor = WorldModel.load(rot)
-    assert rotor.config.dit.warp_geometry == "rotation" and cubist.config.dit.warp_geometry == "shift"
-    assert rotor.config.replace(dit=cubist.config.dit) == cubist.config
-    assert all(np.array_equal(np.asarray(a), np.asarray(b))
-               for a, b in zip(jax.tree.leaves(rotor.params), jax.tree.leaves(cubist.params)))
+    # the warp's interpolation and its geometry are config settings: the weights are kept, bit for bit
+    # (test_camera.py checks the rotation itself)
+    source, before = skip, skipper
+    for flag, field, value in (("--warp-interp", "warp_interp", "cubic"),
+                               ("--warp-geometry", "warp_geometry", "rotation")):
+        out = tmp_path / value
+        assert cli.main(["action-conditioning", str(source), flag, value, "--out", str(out)]) == 0
+        after = WorldModel.load(out)
+        assert getattr(after.config.dit, field) == value and getattr(before.config.dit, field) != value
+        assert after.config.replace(dit=before.config.dit) == before.config
+        assert all(np.array_equal(np.asarray(a), np.asarray(b))
+                   for a, b in zip(jax.tree.leaves(after.params), jax.tree.leaves(before.params)))
+        source, before = out, after
+    cubic, cubist = tmp_path / "cubic", WorldModel.load(tmp_path / "cubic")
     # the jump warp too: the weights kept, the same frames; the streaming state carries the simulated jump from
     # step to step (test_camera.py checks that a trained warp reads it)
     jump = tmp_path / "jump"
