@@ -30,6 +30,10 @@ the training mix, standing still). Metrics (pure numpy / OpenCV functions below,
   stands, mining and placing between clicks).
 * ``sharpness_ratio``: mean |Laplacian| of the dream's frames over the engine's.
 * ``psnr_db``: dream frame vs engine frame.
+* ``colour_error``: mean |dream - engine| (grey levels, per RGB channel) of the frames' ``COLOUR_CELLS`` x
+  ``COLOUR_CELLS`` block means: whether the sky stays sky-coloured and the ground ground-coloured (a sky that
+  darkens or grass that turns yellow), not where the detail is. A frozen dream on a flat world scores low here;
+  the direction and view-change columns judge motion.
 * partner agreement: the shipped ``visible`` / ``position`` judges on dream frames (and on engine frames,
   as a sanity check) against the engine's ground truth (avatar pixels and centroid), on partner programs
   and wherever the engine shows the partner.
@@ -87,6 +91,7 @@ VALID_SCORE = 0.25  # engine direction score from which a step's motion counts a
 MIN_MOTION = (0.5, 0.5, 0.005)  # |yaw| deg, |pitch| deg, |log zoom|: below all three, no motion to agree with
 MAX_MOTION = (24.0, 24.0, 0.15)  # beyond the searched range on any axis: the fit ran off (no trust)
 MIN_VISIBLE_PIXELS = 2  # judges.config.LabelConfig.min_visible_pixels
+COLOUR_CELLS = 4  # the colour error compares 4 x 4 block means (16 x 16 pixels at 64 x 64)
 REGION_MARGIN = 0.03  # LabelConfig.region_margin around the thirds of the screen (capture.REGION_*)
 
 
@@ -137,6 +142,19 @@ def psnr_T(a_THW3: np.ndarray, b_THW3: np.ndarray) -> np.ndarray:
     mse = ((a - b) ** 2).mean(axis=(1, 2, 3))
     with np.errstate(divide="ignore"):
         return 10 * np.log10(255.0**2 / mse)
+
+
+def colour_error_T(a_THW3: np.ndarray, b_THW3: np.ndarray, cells: int = COLOUR_CELLS) -> np.ndarray:
+    """(T,) mean |a - b| (grey levels, over RGB) of each frame pair's ``cells`` x ``cells`` block means (the
+    frame cut into equal blocks; H and W must divide by ``cells``)."""
+    a, b = np.asarray(a_THW3, np.float64), np.asarray(b_THW3, np.float64)
+    if a.shape != b.shape or a.ndim != 4 or a.shape[-1] != 3:
+        raise ValueError(f"frame sets must be equal (T, H, W, 3); got {a.shape} vs {b.shape}")
+    t, h, w, _ = a.shape
+    if h % cells or w % cells:
+        raise ValueError(f"frames of {h} x {w} do not cut into {cells} x {cells} equal blocks")
+    block = lambda x: x.reshape(t, cells, h // cells, cells, w // cells, 3).mean(axis=(2, 4))
+    return np.abs(block(a) - block(b)).mean(axis=(1, 2, 3))
 
 
 def frozen_T(dream_change_T: np.ndarray, engine_change_T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -993,6 +1011,7 @@ class Scored:
     sharp_e: np.ndarray
     sharp_d: np.ndarray
     psnr: np.ndarray
+    colour: np.ndarray  # per-step ``colour_error_T``
     dir_e: np.ndarray
     dir_d: np.ndarray
     valid: np.ndarray
@@ -1048,7 +1067,7 @@ def score(rollout: Rollout, engine: EngineCache, dream_THW3: np.ndarray, judge, 
         motion_d[t] = fit_motion(pd[t], pd[t + 1])
     n = len(engine.change)
     return Scored(rollout, engine.change, view_change_T(d), engine.sharp, sharpness_T(d)[1:], psnr_T(e, d)[1:],
-                  engine.dir, dirs["dream"], engine.valid, engine.motion, motion_d, engine.vis_truth,
+                  colour_error_T(e, d)[1:], engine.dir, dirs["dream"], engine.valid, engine.motion, motion_d, engine.vis_truth,
                   engine.pos_truth, engine.vis, engine.pos,
                   judge.answer("visible", d[1:]) if judge is not None else [None] * n,
                   judge.answer("position", d[1:]) if judge is not None else [None] * n,
@@ -1091,6 +1110,7 @@ def summarize(parts: Sequence[tuple[Scored, np.ndarray]]) -> dict:
         "sharpness_ratio": _r(ratio(sd.sum(), se.sum())),
         "sharpness_engine": _r(se.mean(), 2), "sharpness_dream": _r(sd.mean(), 2),
         "psnr_db": _r(psnr.mean(), 2),
+        "colour_error": _r(cat(lambda s: s.colour).mean(), 2),
     }
     if all(s.within_e is not None and s.within_d is not None for s, _ in parts):
         we, wd = cat(lambda s: s.within_e), cat(lambda s: s.within_d)
@@ -1421,6 +1441,8 @@ def run(model_specs: Sequence[str], program_names: Sequence[str], setup: Setup, 
                                   f"share where the dream changes > {DRIFT_DREAM_MIN}",
                 "sharpness_ratio": "mean |4-neighbour Laplacian| of the dream's frames / the engine's",
                 "psnr_db": "dream vs engine frame, RGB, mean over steps (capped at 99)",
+                "colour_error": f"mean |dream - engine| of the frames' {COLOUR_CELLS} x {COLOUR_CELLS} block means "
+                                "(grey levels, over RGB): the sky and ground colours, not the detail",
                 "visible_/position_agreement": "judge answer == engine ground truth, on partner programs and "
                                                "wherever the engine shows the partner (ambiguous truths skipped)",
                 "visible_/position_balanced": "the same per truth class, averaged over the classes: one answer "
@@ -1460,24 +1482,24 @@ def print_tables(result: dict) -> None:
         wh = " ".join(f"{w:>6s}" for w in windows)
         print(f"{'':16s} {'view-change ratio':^{7 * len(windows)}s}| {'direction agreement':^{7 * len(windows)}s}| "
               f"{'all steps':^57s}")
-        print(f"{'program':16s} {wh} | {wh} | frozen  drift  sharp   PSNR  vis_d  vis_e  pos_d  pos_e     FD")
+        print(f"{'program':16s} {wh} | {wh} | frozen  drift  sharp   PSNR colour  vis_d  vis_e  pos_d  pos_e     FD")
         for prog, row in res["programs"].items():
             vc = " ".join(_fmt(row["windows"].get(w, {}).get("view_change_ratio")) for w in windows)
             da = " ".join(_fmt(row["windows"].get(w, {}).get("direction_agreement")) for w in windows)
             a = row["all"]
             print(f"{prog:16s} {vc} | {da} | {_fmt(a['frozen_fraction'])} {_fmt(a['drift_fraction'])} "
                   f"{_fmt(a['sharpness_ratio'])} "
-                  f"{_fmt(a['psnr_db'], 1)} {_fmt(a.get('visible_agreement_dream'))} "
+                  f"{_fmt(a['psnr_db'], 1)} {_fmt(a.get('colour_error'), 1)} {_fmt(a.get('visible_agreement_dream'))} "
                   f"{_fmt(a.get('visible_agreement_engine'))} {_fmt(a.get('position_agreement_dream'))} "
                   f"{_fmt(a.get('position_agreement_engine'))} {_fmt(a.get('frechet'), 1)}")
-        print(f"{'surface':16s} {'vc':>6s} {'within':>6s} {'dir':>6s} frozen  drift  sharp   PSNR  vis_d  vis_e  pos_d  "
+        print(f"{'surface':16s} {'vc':>6s} {'within':>6s} {'dir':>6s} frozen  drift  sharp   PSNR colour  vis_d  vis_e  pos_d  "
               "pos_e     FD  steps  visB_d  posB_d  (B: balanced over truth classes)")
         rows = list(res["surfaces"].items()) + list(res["partner_at_start"].items()) + [("overall", res["overall"])]
         for surf, a in rows:
             print(f"{surf:16s} {_fmt(a['view_change_ratio'])} {_fmt(a.get('within_step_change_ratio'))} "
                   f"{_fmt(a['direction_agreement'])} "
                   f"{_fmt(a['frozen_fraction'])} {_fmt(a['drift_fraction'])} {_fmt(a['sharpness_ratio'])} "
-                  f"{_fmt(a['psnr_db'], 1)} "
+                  f"{_fmt(a['psnr_db'], 1)} {_fmt(a.get('colour_error'), 1)} "
                   f"{_fmt(a.get('visible_agreement_dream'))} {_fmt(a.get('visible_agreement_engine'))} "
                   f"{_fmt(a.get('position_agreement_dream'))} {_fmt(a.get('position_agreement_engine'))} "
                   f"{_fmt(a.get('frechet'), 1)} {a['steps']:6d}  {_fmt(a.get('visible_balanced_dream'))}  "

@@ -62,7 +62,7 @@ def _scored(within_e, within_d, change=4.0):
     rollout = df.Rollout("forward", "learner", 0, None, "grass", True, 0, [], np.zeros((n + 1, 2, 2, 3), np.uint8),
                          np.zeros(n + 1), [None] * (n + 1), np.zeros((n + 1, 2)), np.asarray(within_e, np.float32))
     z, c = np.zeros(n), np.full(n, change)
-    return df.Scored(rollout, c, c, z + 1, z + 1, z, z, z, np.zeros(n, bool), np.zeros((n, 3)), np.zeros((n, 3)),
+    return df.Scored(rollout, c, c, z + 1, z + 1, z, z, z, z, np.zeros(n, bool), np.zeros((n, 3)), np.zeros((n, 3)),
                      [None] * n, [None] * n, [None] * n, [None] * n, [None] * n, [None] * n, None, None,
                      rollout.within_T, None if within_d is None else np.asarray(within_d, np.float32))
 
@@ -128,6 +128,29 @@ def test_psnr():
     assert p[0] == np.inf and p[1] == pytest.approx(0.0)
     with pytest.raises(ValueError, match="differ in shape"):
         df.psnr_T(a, b[:1])
+
+
+def test_colour_error_compares_block_means_not_detail():
+    """Equal frames score 0; a frame whose colours moved by 20 grey levels scores 20; fine detail that keeps
+    each block's mean (a checkerboard against its flat mean) scores 0; a darkened sky half scores half."""
+    sky_ground = np.zeros((3, 64, 64, 3), np.uint8)
+    sky_ground[:, :32] = (120, 160, 230)
+    sky_ground[:, 32:] = (80, 140, 50)
+    assert df.colour_error_T(sky_ground, sky_ground).tolist() == [0.0, 0.0, 0.0]
+    brighter = sky_ground.astype(np.int16) + 20
+    np.testing.assert_allclose(df.colour_error_T(sky_ground, brighter.astype(np.uint8)), 20.0)
+    checker = np.full((1, 64, 64, 3), 100, np.uint8)
+    checker[0, ::2, ::2] = checker[0, 1::2, 1::2] = 200
+    checker[0, ::2, 1::2] = checker[0, 1::2, ::2] = 0
+    assert df.colour_error_T(checker, np.full_like(checker, 100))[0] == pytest.approx(0.0)
+    dark_sky = sky_ground.copy()
+    dark_sky[:, :32] = (20, 30, 60)
+    want = np.mean([100, 130, 170]) / 2  # the sky half's blocks differ by the mean of 100, 130, 170
+    np.testing.assert_allclose(df.colour_error_T(sky_ground, dark_sky), want)
+    with pytest.raises(ValueError, match="equal"):
+        df.colour_error_T(sky_ground, sky_ground[:1])
+    with pytest.raises(ValueError, match="blocks"):
+        df.colour_error_T(sky_ground[:, :30], sky_ground[:, :30])
 
 
 # ---------------------------------------------------------------------------------------------
