@@ -1067,8 +1067,8 @@ def score(rollout: Rollout, engine: EngineCache, dream_THW3: np.ndarray, judge, 
         motion_d[t] = fit_motion(pd[t], pd[t + 1])
     n = len(engine.change)
     return Scored(rollout, engine.change, view_change_T(d), engine.sharp, sharpness_T(d)[1:], psnr_T(e, d)[1:],
-                  colour_error_T(e, d)[1:], engine.dir, dirs["dream"], engine.valid, engine.motion, motion_d, engine.vis_truth,
-                  engine.pos_truth, engine.vis, engine.pos,
+                  colour_error_T(e, d)[1:], engine.dir, dirs["dream"], engine.valid, engine.motion, motion_d,
+                  engine.vis_truth, engine.pos_truth, engine.vis, engine.pos,
                   judge.answer("visible", d[1:]) if judge is not None else [None] * n,
                   judge.answer("position", d[1:]) if judge is not None else [None] * n,
                   engine.feat, features(d[1:]) if features is not None else None, rollout.within_T, within_d)
@@ -1489,11 +1489,12 @@ def print_tables(result: dict) -> None:
             a = row["all"]
             print(f"{prog:16s} {vc} | {da} | {_fmt(a['frozen_fraction'])} {_fmt(a['drift_fraction'])} "
                   f"{_fmt(a['sharpness_ratio'])} "
-                  f"{_fmt(a['psnr_db'], 1)} {_fmt(a.get('colour_error'), 1)} {_fmt(a.get('visible_agreement_dream'))} "
+                  f"{_fmt(a['psnr_db'], 1)} {_fmt(a.get('colour_error'), 1)} "
+                  f"{_fmt(a.get('visible_agreement_dream'))} "
                   f"{_fmt(a.get('visible_agreement_engine'))} {_fmt(a.get('position_agreement_dream'))} "
                   f"{_fmt(a.get('position_agreement_engine'))} {_fmt(a.get('frechet'), 1)}")
-        print(f"{'surface':16s} {'vc':>6s} {'within':>6s} {'dir':>6s} frozen  drift  sharp   PSNR colour  vis_d  vis_e  pos_d  "
-              "pos_e     FD  steps  visB_d  posB_d  (B: balanced over truth classes)")
+        print(f"{'surface':16s} {'vc':>6s} {'within':>6s} {'dir':>6s} frozen  drift  sharp   PSNR colour  vis_d  "
+              "vis_e  pos_d  pos_e     FD  steps  visB_d  posB_d  (B: balanced over truth classes)")
         rows = list(res["surfaces"].items()) + list(res["partner_at_start"].items()) + [("overall", res["overall"])]
         for surf, a in rows:
             print(f"{surf:16s} {_fmt(a['view_change_ratio'])} {_fmt(a.get('within_step_change_ratio'))} "
