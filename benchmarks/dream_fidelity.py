@@ -30,7 +30,7 @@ the training mix, standing still). Metrics (pure numpy / OpenCV functions below,
   stands, mining and placing between clicks).
 * ``sharpness_ratio``: mean |Laplacian| of the dream's frames over the engine's.
 * ``psnr_db``: dream frame vs engine frame.
-* ``colour_error``: mean |dream - engine| (grey levels, per RGB channel) of the frames' ``COLOUR_CELLS`` x
+* ``colour_error``: mean |dream - engine| (grey levels, over RGB) of the frames' ``COLOUR_CELLS`` x
   ``COLOUR_CELLS`` block means: whether the sky stays sky-coloured and the ground ground-coloured (a sky that
   darkens or grass that turns yellow), not where the detail is. A frozen dream on a flat world scores low here;
   the direction and view-change columns judge motion.
