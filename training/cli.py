@@ -150,7 +150,8 @@ def cmd_sprint(args) -> int:
 
 def cmd_install(args) -> int:
     from training.surgery import install_default
-    dest = install_default(args.model, args.dest, tuple(args.files), noise_warp=args.noise_warp)
+    dest = install_default(args.model, args.dest, tuple(args.files), noise_warp=args.noise_warp,
+                           still_memory=args.still_memory)
     print(f"installed {args.model} as the default model at {dest}")
     return 0
 
@@ -265,6 +266,9 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("--noise-warp", type=float, default=None, metavar="RHO",
                    help="the installed config's SamplerConfig.noise_warp (in [0, 1]; 0 = fresh noise for every frame; "
                         "default: the model's)")
+    i.add_argument("--still-memory", type=float, default=None, metavar="M",
+                   help="the installed config's SamplerConfig.still_memory (in [0, 1): the share of the camera warp's "
+                        "input kept while a player's view holds still; 0 = off; default: the model's)")
     i.set_defaults(func=cmd_install)
     for p in sub.choices.values():
         add_debug_flag(p)

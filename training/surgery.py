@@ -175,14 +175,15 @@ def official_dit(model: str | Path, dest: str | Path, seed: int = 0) -> Path:
     official layout to ``dest``: our options at their official values (``DiTConfig.camera_warp``,
     ``walk_warp``, ``jump_warp`` and ``previous_skip`` off, ``warp_interp`` linear, ``warp_geometry`` shift,
     ``ActionConfig.mouse_input_gain`` 1, and the sampler's ``noise_warp`` 0, fresh noise: it moves the noise with
-    the camera warp), every size as ``model``'s. Trained through the DiT stages with the same steps and data as
-    ``model``'s DiT, it is the control that measures those options (docs/training.md, "The control row")."""
+    the camera warp, and ``still_memory`` 0), every size as ``model``'s. Trained through the DiT stages with the
+    same steps and data as ``model``'s DiT, it is the control that measures those options (docs/training.md,
+    "The control row")."""
     base = WorldModel.load(model_directory(model))
     old = base.config
     dit = dataclasses.replace(old.dit, camera_warp=(0.0, 0.0), walk_warp=0.0, jump_warp=0.0,
                               previous_skip=False, warp_interp="linear", warp_geometry="shift")
     cfg = old.replace(dit=dit, action=dataclasses.replace(old.action, mouse_input_gain=1.0),
-                      sampler=dataclasses.replace(old.sampler, noise_warp=0.0))
+                      sampler=dataclasses.replace(old.sampler, noise_warp=0.0, still_memory=0.0))
     fresh_dit, _, _ = WorldModel.from_config(cfg, seed=seed).params
     _, vae_state, encoder_state = base.params
     checkpoint.save(dest, cfg, dict(zip(COMPONENTS, (fresh_dit, vae_state, encoder_state))))
@@ -190,15 +191,18 @@ def official_dit(model: str | Path, dest: str | Path, seed: int = 0) -> Path:
 
 
 def install_default(model: str | Path, dest: str | Path | None = None, extra_files: tuple = (),
-                    noise_warp: float | None = None) -> Path:
+                    noise_warp: float | None = None, still_memory: float | None = None) -> Path:
     """Copy a stage's ``model/`` (weights, either layout, + config; a ``lineage.json`` beside them comes along)
     and ``extra_files`` (training log, eval summary) to the package's default-model directory, atomically
-    (the env loads it when no checkpoint is named). ``noise_warp`` (None keeps the model's) is written into the
-    installed config's sampler (``SamplerConfig.noise_warp``, a rollout setting: the weights are the same)."""
+    (the env loads it when no checkpoint is named). ``noise_warp`` and ``still_memory`` (None keeps the model's)
+    are written into the installed config's sampler (``SamplerConfig``; rollout settings: the weights are the
+    same)."""
     model, dest = Path(model), Path(dest) if dest else DEFAULT_MODEL_DIR
     loaded = WorldModel.load(model)  # refuse to install anything that does not load
-    if noise_warp is not None:  # SamplerConfig and WorldModelConfig validate it (a clear error naming the field)
-        loaded = loaded.with_sampler(dataclasses.replace(loaded.config.sampler, noise_warp=float(noise_warp)))
+    settings = {name: float(value) for name, value in (("noise_warp", noise_warp), ("still_memory", still_memory))
+                if value is not None}
+    if settings:  # SamplerConfig and WorldModelConfig validate them (a clear error naming the field)
+        loaded = loaded.with_sampler(dataclasses.replace(loaded.config.sampler, **settings))
     if (model / "lineage.json").is_file():
         extra_files = (model / "lineage.json", *extra_files)
     dest.parent.mkdir(parents=True, exist_ok=True)

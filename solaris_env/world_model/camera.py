@@ -33,6 +33,18 @@ def frame_turns(mouse_BPFWA: jax.Array, frames_per_step: int) -> jax.Array:
     return mouse_BPFWA[..., -frames_per_step:, :].astype(jnp.float32).sum(axis=-2) * CAMERA_SCALE_DEG
 
 
+def holds_still(mouse_BPFWA: jax.Array, keyboard_BPFWK: jax.Array, frames_per_step: int,
+                lift_BPF2: jax.Array | None = None) -> jax.Array:
+    """(B, P, F) bool: the frame's view holds still, so its warp is the identity: in the last ``frames_per_step``
+    ticks of its action windows no mouse movement and no key down, and (with the jump warp's ``lift_BPF2``, the
+    [previous, own] heights of ``frame_lifts``) no change of height."""
+    k = frames_per_step
+    still = (mouse_BPFWA[..., -k:, :] == 0).all(axis=(-2, -1)) & (keyboard_BPFWK[..., -k:, :] == 0).all(axis=(-2, -1))
+    if lift_BPF2 is not None:
+        still = still & (lift_BPF2[..., 0] == lift_BPF2[..., 1])
+    return still
+
+
 def content_shift(turns_BPF2: jax.Array, pixels_per_degree: tuple[float, float]) -> jax.Array:
     """(B, P, F, 2) (down, right) latent pixels the view's content moves for the turns: a left turn (+ yaw)
     moves it right, looking up (+ pitch) moves it down. ``pixels_per_degree`` is (height, width)."""

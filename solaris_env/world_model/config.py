@@ -331,9 +331,15 @@ class SamplerConfig:
     # a turn uncovers): noise = rho * moved + sqrt(1 - rho^2) * fresh. 0 = fresh noise for every frame (the
     # reference). Needs the camera warp (its pixels per degree). A rollout setting.
     noise_warp: float = 0.0
+    # Still memory (ours; ``still_memory``, docs/model.md §8.5): while a player's view holds still (no key down, no
+    # mouse movement, no jump under way: the warp is the identity), the camera warp's input for its next frame
+    # keeps this share of the previous warp input, m * previous + (1 - m) * the newest frame, instead of the
+    # newest frame alone. 0 = the newest frame always. Needs the camera warp. A rollout setting.
+    still_memory: float = 0.0
 
     def __post_init__(self):
         _require(0.0 <= self.noise_warp <= 1.0, f"noise_warp must be in [0, 1], got {self.noise_warp}")
+        _require(0.0 <= self.still_memory < 1.0, f"still_memory must be in [0, 1), got {self.still_memory}")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -368,6 +374,9 @@ class WorldModelConfig:
         _require(self.sampler.noise_warp == 0.0 or self.dit.camera_warp_enabled,
                  f"sampler.noise_warp={self.sampler.noise_warp} moves the noise by the camera warp's pixels per "
                  f"degree; it needs dit.camera_warp on")
+        _require(self.sampler.still_memory == 0.0 or self.dit.camera_warp_enabled,
+                 f"sampler.still_memory={self.sampler.still_memory} blends the camera warp's input; it needs "
+                 f"dit.camera_warp on")
 
     # -- derived sizes (the only place they are computed) --------------------------------------
     @property

@@ -168,6 +168,25 @@ def _previous_frames(x_BPFhwC: jax.Array) -> jax.Array:
     return jnp.concatenate([jnp.zeros_like(x_BPFhwC[:, :, :1]), x_BPFhwC[:, :, :-1]], axis=2)
 
 
+def _still_memories(previous_BPhwC: jax.Array, x_BPFhwC: jax.Array, still_BPF: jax.Array | None,
+                    memory: float) -> tuple[jax.Array, jax.Array]:
+    """(each new frame's previous latent, each new frame's latent as the next frame's previous latent), both like
+    ``x``, for a cached pass whose cache holds ``previous`` (the camera warp's input, docs/model.md §8.5). Frame f
+    passes on itself, or where ``still_BPF`` holds, ``memory`` * its own previous latent + (1 - ``memory``) *
+    itself. ``still_BPF`` None or ``memory`` 0: the frames themselves, as teacher forcing reads them."""
+    prev = previous_BPhwC.astype(x_BPFhwC.dtype)
+    prevs, memories = [], []
+    for f in range(x_BPFhwC.shape[2]):
+        own = x_BPFhwC[:, :, f]
+        if memory and still_BPF is not None:
+            blend = memory * prev.astype(jnp.float32) + (1.0 - memory) * own.astype(jnp.float32)
+            own = jnp.where(still_BPF[:, :, f, None, None, None], blend.astype(own.dtype), own)
+        prevs.append(prev)
+        memories.append(own)
+        prev = own
+    return jnp.stack(prevs, axis=2), jnp.stack(memories, axis=2)
+
+
 class _Conditioning(NamedTuple):
     """Per-forward inputs every block reads (constant across layers)."""
     e0_BPF6D: jax.Array  # per-(player, frame) adaLN modulation
@@ -509,7 +528,8 @@ class WorldDiT(nnx.Module):
 
     def decode(self, x, t, cond, context_kv: ContextKV, mouse, keyboard, cache: kv_cache.DiTCache,
                start_frame: int | jax.Array, *, commit: int = 0,
-               layers: "tuple[DiTBlock, ...] | None" = None) -> tuple[jax.Array, kv_cache.DiTCache]:
+               layers: "tuple[DiTBlock, ...] | None" = None,
+               still_memory: float = 0.0) -> tuple[jax.Array, kv_cache.DiTCache]:
         """F new latent frames at absolute positions ``start_frame``.. against the rolling ``cache``: every
         pass of a causal rollout (docs/model.md §3.6, §5.2, §5.5).
 
@@ -533,6 +553,11 @@ class WorldDiT(nnx.Module):
         the streaming model passes its per-layer parameters (``unstack_blocks``). The layers run as a
         Python loop with static indices: every layer reads its weights, cache and context K/V in place,
         and the action module runs in the first ``num_action_blocks`` layers without a ``lax.cond``.
+
+        ``still_memory`` (a Python float in [0, 1), the rollout setting ``SamplerConfig.still_memory``; camera warp
+        only): each new frame's own previous latent, and the cache's ``latent`` after a commit, is the frame's
+        latent blended with the previous latent where the frame holds still (``_still_memories``). 0 = the
+        frames as they are (teacher forcing's previous latents).
         """
         c, d = self.cfg, self.cfg.dit
         layers = self.layer_blocks() if layers is None else layers
@@ -542,7 +567,10 @@ class WorldDiT(nnx.Module):
         for name, n in (("layers", len(layers)), ("cache", len(cache.layers))):
             if n != d.num_layers:
                 raise ValueError(f"{name} has {n} layers; the config has num_layers={d.num_layers}")
-        cond_in, tokens, e, base, jump_after = self._prepare_cached(x, t, cond, context_kv, mouse, keyboard, cache)
+        if not 0.0 <= still_memory < 1.0:
+            raise ValueError(f"still_memory must be in [0, 1), got {still_memory}")
+        cond_in, tokens, e, base, jump_after, memories = self._prepare_cached(x, t, cond, context_kv, mouse,
+                                                                              keyboard, cache, still_memory)
         gh, gw = self._grid()
         angles = rope.rope_3d_angles(d.rope_split, d.rope_theta, num_frames, gh, gw, tokens.shape[1], start_frame)
         action_angles = rope.temporal_rope_angles(c.action.rope_dims, c.action.rope_theta, num_frames, start_frame)
@@ -555,8 +583,8 @@ class WorldDiT(nnx.Module):
         v = self._output(tokens, e, x, base)
         if not commit:
             return v, cache
-        # the camera warp's latent: the newest committed frame's
-        latent = None if cache.latent is None else x[:, :, commit - 1].astype(cache.latent.dtype)
+        # the camera warp's latent: the newest committed frame's (blended while still: ``_still_memories``)
+        latent = None if cache.latent is None else memories[:, :, commit - 1].astype(cache.latent.dtype)
         jump = None if jump_after is None else jump_after[:, :, commit - 1]  # the jump state after that frame
         return v, kv_cache.DiTCache(layers=tuple(new_layers), latent=latent, jump=jump)
 
@@ -581,9 +609,11 @@ class WorldDiT(nnx.Module):
         return ContextKV(tuple(heads_major(k) for k, _ in kv), tuple(heads_major(v) for _, v in kv))
 
     # -- internals -----------------------------------------------------------------------------------
-    def _prepare_cached(self, x, t, cond, context_kv: ContextKV, mouse, keyboard, cache: kv_cache.DiTCache):
+    def _prepare_cached(self, x, t, cond, context_kv: ContextKV, mouse, keyboard, cache: kv_cache.DiTCache,
+                        still_memory: float = 0.0):
         """Shape checks and ``_prepare`` for ``decode`` (no context projection); also returns the jump state after
-        each new frame (``camera.frame_lifts``; None without the jump warp)."""
+        each new frame (``camera.frame_lifts``; None without the jump warp) and each new frame's latent as the next
+        frame's previous latent (``_still_memories``; None without the camera warp)."""
         c = self.cfg
         b, p, num_frames = x.shape[:3]
         want = (b, p, c.dit.num_heads, None, c.dit.head_dim)
@@ -604,8 +634,17 @@ class WorldDiT(nnx.Module):
             if cache.jump is None:
                 raise ValueError("jump_warp is on but the cache has no jump state (kv_cache.init_cache)")
             lift, jump_after = camera_lib.frame_lifts(keyboard, num_frames, k, cache.jump)
-        return (*self._prepare(x, t, cond, None, windows(mouse), windows(keyboard), self._cached_previous(x, cache),
-                               lift), jump_after)
+        mouse_w, keyboard_w = windows(mouse), windows(keyboard)
+        prev = memories = None
+        if self.cfg.dit.camera_warp_enabled:
+            if cache.latent is None:
+                raise ValueError("camera_warp is on but the cache has no latent (kv_cache.init_cache)")
+            still = None
+            if still_memory:
+                given = cond[:, :, :, 0, 0, 0] > 0  # mask channel 0: 1 where the frame is given
+                still = camera_lib.holds_still(mouse_w, keyboard_w, k, lift) & ~given
+            prev, memories = _still_memories(cache.latent, x, still, still_memory)
+        return (*self._prepare(x, t, cond, None, mouse_w, keyboard_w, prev, lift), jump_after, memories)
 
     def _clip_lifts(self, keyboard, num_frames: int) -> jax.Array | None:
         """(B, P, F, 2) each frame's [previous, own] height from the jump key, the clip starting on the floor
@@ -627,14 +666,6 @@ class WorldDiT(nnx.Module):
                                         self.cfg.frames_per_step, dit.camera_warp, dit.walk_warp,
                                         dit.warp_interp, lift, dit.jump_warp,
                                         dit.warp_geometry).reshape(lead + prev_BPFhwC.shape[3:])
-
-    def _cached_previous(self, x, cache: kv_cache.DiTCache):
-        """Previous latents of the F new frames of a cached pass: the cache's last frame, then x's own."""
-        if not self.cfg.dit.camera_warp_enabled:
-            return None
-        if cache.latent is None:
-            raise ValueError("camera_warp is on but the cache has no latent (kv_cache.init_cache)")
-        return jnp.concatenate([cache.latent[:, :, None].astype(x.dtype), x[:, :, :-1]], axis=2)
 
     def _grid(self) -> tuple[int, int]:
         _, ph, pw = self.cfg.dit.patch_size

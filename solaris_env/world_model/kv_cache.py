@@ -22,7 +22,8 @@ array, no stacking copy after a commit), with three caches per layer:
 | keyboard | (B * P, Na, window, Ka), heads-major | one per frame |
 
 With the camera warp (``DiTConfig.camera_warp``) the cache also carries ``latent``, the last cached frame's
-latent, which the next frame sees shifted.
+latent (or, with ``still_memory``, its blend with the previous ones while the view held still), which the next
+frame sees shifted.
 
 Mouse/keyboard caches exist for every layer but only the first ``num_action_blocks`` layers touch them;
 the others stay empty.
@@ -72,8 +73,9 @@ class LayerCache:
 @struct.dataclass
 class DiTCache:
     layers: tuple[LayerCache, ...]  # one per DiT layer
-    # camera warp only (``DiTConfig.camera_warp``): (B, P, h, w, C) the last cached frame's latent (as the
-    # commit pass got it), the next frame's previous latent; None otherwise
+    # camera warp only (``DiTConfig.camera_warp``): (B, P, h, w, C) the next frame's previous latent: the last
+    # cached frame's latent as the commit pass got it (with ``still_memory``, blended with the one before it
+    # while the view held still; ``WorldDiT.decode``); None otherwise
     latent: jax.Array | None = None
     # jump warp only (``DiTConfig.jump_warp``): (B, P, ``JUMP_STATE``) the jump state after the last cached
     # frame (height, vertical velocity, that frame's mean height; ``camera.frame_lifts``); None otherwise

@@ -326,7 +326,7 @@ class Programs:
         actions = jnp.concatenate([ws.actions_BPWA, actions_PkA.astype(jnp.float32)], axis=1)  # windows i-1, i
         t = jnp.asarray([0.0, self.timesteps[0]], jnp.float32)
         v, cache = dit[0].decode(*self._dit_args(x, t, (cond, ws.context_kv, actions, ws.dit_cache), i - 1),
-                                 commit=1, layers=dit[1])
+                                 commit=1, layers=dit[1], still_memory=self.cfg.sampler.still_memory)
         return from_stream(self.cfg, v[:, :, 1:])[0], cache
 
     def _denoise_world(self, params, ws: WorldState, actions_PkA, noise):

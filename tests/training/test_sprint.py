@@ -249,7 +249,7 @@ def test_install_takes_a_sharded_sprint_model_with_its_lineage(test_model, tmp_p
         np.testing.assert_array_equal(a, b)
 
 
-def test_install_writes_the_noise_warp_into_the_shipped_sampler(test_model, tmp_path):
+def test_install_writes_the_rollout_settings_into_the_shipped_sampler(test_model, tmp_path):
     from solaris_env.world_model.world_model import WorldModel
 
     src = checkpoint.save(tmp_path / "stage" / "model", test_model.config, _params(test_model),
@@ -260,10 +260,13 @@ def test_install_writes_the_noise_warp_into_the_shipped_sampler(test_model, tmp_
     cfg = test_model.config.replace(dit=dataclasses.replace(test_model.config.dit, camera_warp=(0.1, 0.06)))
     src = checkpoint.save(tmp_path / "warp" / "model", cfg, _params(WorldModel.from_config(cfg, seed=0)),
                           storage_dtype="float16")
-    assert cli.main(["install", str(src), "--dest", str(tmp_path / "w"), "--noise-warp", "0.9"]) == 0
+    assert cli.main(["install", str(src), "--dest", str(tmp_path / "w"), "--noise-warp", "0.9",
+                     "--still-memory", "0.5"]) == 0
     installed = WorldModel.load(tmp_path / "w")
-    assert installed.config.sampler.noise_warp == 0.9
+    assert installed.config.sampler.noise_warp == 0.9 and installed.config.sampler.still_memory == 0.5
     assert installed.config.replace(sampler=cfg.sampler) == cfg  # nothing else moved
+    with pytest.raises(SystemExit, match="still_memory must be in"):
+        cli.main(["install", str(src), "--dest", str(tmp_path / "bad"), "--still-memory", "1"])
 
 
 @pytest.mark.slow

@@ -22,7 +22,7 @@ def test_official_dit_keeps_the_autoencoder_and_starts_a_fresh_official_dit(tmp_
     ours = base.replace(dit=dataclasses.replace(base.dit, camera_warp=(0.1, 0.06), walk_warp=0.1, previous_skip=True,
                                                 warp_geometry="rotation"),
                         action=dataclasses.replace(base.action, mouse_input_gain=10.0),
-                        sampler=dataclasses.replace(base.sampler, noise_warp=0.9))  # as the shipped default
+                        sampler=dataclasses.replace(base.sampler, noise_warp=0.9, still_memory=0.5))  # as shipped
     WorldModel.from_config(ours, seed=3).save(tmp_path / "ours")
 
     assert cli.main(["official-dit", str(tmp_path / "ours"), "--out", str(tmp_path / "control"), "--seed", "5"]) == 0
@@ -32,7 +32,7 @@ def test_official_dit_keeps_the_autoencoder_and_starts_a_fresh_official_dit(tmp_
     assert cfg.dit.warp_geometry == "shift"  # the rotation reads its field of view from the warp it no longer has
     assert not cfg.dit.previous_skip and "skip_gate" not in control.params[0]
     assert cfg.action.mouse_input_gain == 1.0
-    assert cfg.sampler.noise_warp == 0.0  # fresh noise: warped noise needs the camera warp
+    assert cfg.sampler.noise_warp == 0.0 and cfg.sampler.still_memory == 0.0  # both need the camera warp
     # every other field is the source's: only our options changed
     assert cfg.replace(dit=ours.dit, action=ours.action, sampler=ours.sampler) == src.config
     # the autoencoder and the image encoder are the source's, bit for bit

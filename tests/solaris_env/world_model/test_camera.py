@@ -584,3 +584,121 @@ def test_rotation_warp_changes_the_output_only_when_turning():
     assert float(delta[0]) == 0.0 and float(delta[1:].min()) > 1e-4, delta  # frame 0 has no previous frame
     still = dict(inp, mouse=jnp.zeros_like(inp["mouse"]))
     np.testing.assert_allclose(causal_fn(model, *args(still)), causal_fn(model_shift, *args(still)), atol=1e-6)
+
+
+# ---------------------------------------------------------------------------------------------
+# Still memory (SamplerConfig.still_memory): the warp's input blended while the view holds still
+# ---------------------------------------------------------------------------------------------
+
+def test_holds_still_reads_the_frames_last_ticks():
+    k = 4
+    mouse = np.zeros((1, 1, 4, 12, 2), np.float32)
+    kb = np.concatenate([_keys(), _keys("forward"), _keys("attack", ticks=8), _keys()], axis=2)
+    kb[0, 0, 2, -k:] = 0.0  # frame 2: the key was down only in the previous frame's ticks
+    mouse[0, 0, 3, -1, 1] = 0.01  # frame 3: the smallest look up
+    still = camera_lib.holds_still(jnp.asarray(mouse), jnp.asarray(kb), k)
+    np.testing.assert_array_equal(still[0, 0], [True, False, True, False])
+    mouse[0, 0, 3, 0, 1] = 0.0
+    mouse[0, 0, 3, :-k, 0] = 5.0  # older turns do not count
+    mouse[0, 0, 3, -1, 1] = 0.0
+    lift = np.zeros((1, 1, 4, 2), np.float32)
+    lift[0, 0, 0] = [0.3, 0.2]  # still falling after a jump: the view moves
+    still = camera_lib.holds_still(jnp.asarray(mouse), jnp.asarray(kb), k, jnp.asarray(lift))
+    np.testing.assert_array_equal(still[0, 0], [False, False, True, True])
+
+
+def test_still_memories_blend_only_still_frames_and_chain():
+    from solaris_env.world_model.dit import _still_memories
+    rng = np.random.default_rng(0)
+    prev = jnp.asarray(rng.normal(size=(1, 2, 3, 3, 4)), jnp.float32)
+    x = jnp.asarray(rng.normal(size=(1, 2, 3, 3, 3, 4)), jnp.float32)
+    for still, m in ((None, 0.5), (jnp.ones((1, 2, 3), bool), 0.0)):  # off: the frames themselves
+        p, mem = _still_memories(prev, x, still, m)
+        np.testing.assert_array_equal(p, jnp.concatenate([prev[:, :, None], x[:, :, :-1]], axis=2))
+        np.testing.assert_array_equal(mem, x)
+    still = jnp.asarray([[[True, True, False], [False, True, True]]])
+    p, mem = _still_memories(prev, x, still, 0.75)
+    a0 = 0.75 * prev[:, 0] + 0.25 * x[:, 0, 0]  # player 0: frames 0 and 1 blend, frame 2 moves
+    a1 = 0.75 * a0 + 0.25 * x[:, 0, 1]
+    np.testing.assert_allclose(mem[:, 0], jnp.stack([a0, a1, x[:, 0, 2]], axis=1), atol=1e-6)
+    np.testing.assert_allclose(p[:, 0], jnp.stack([prev[:, 0], a0, a1], axis=1), atol=1e-6)
+    b1 = 0.75 * x[:, 1, 0] + 0.25 * x[:, 1, 1]  # player 1: frame 0 moves, frames 1 and 2 blend
+    np.testing.assert_allclose(mem[:, 1], jnp.stack([x[:, 1, 0], b1, 0.75 * b1 + 0.25 * x[:, 1, 2]], axis=1),
+                               atol=1e-6)
+
+
+def test_still_memory_config():
+    cfg = _warp_cfg()
+    from solaris_env.world_model.config import SamplerConfig
+    for bad in (-0.1, 1.0, 1.5):
+        with pytest.raises(ValueError, match="still_memory"):
+            SamplerConfig(still_memory=bad)
+    with pytest.raises(ValueError, match="still_memory"):
+        WorldModelConfig.test().replace(sampler=SamplerConfig(still_memory=0.5))  # no camera warp
+    assert cfg.replace(sampler=SamplerConfig(still_memory=0.5)).sampler.still_memory == 0.5
+
+
+def test_still_memory_blends_the_committed_latent_only_while_still(warp_model):
+    """decode(commit=1) with still_memory: the cache's latent is the blend of the committed frame and the cache's
+    previous latent where the frame holds still and is not given, the frame itself otherwise; the pass's output
+    is the same (the blend is the next frame's input)."""
+    cfg, model, inp = warp_model
+    fn = nnx.jit(lambda m, x, t, cond, context, mouse, keyboard, cache, sm: m.decode(
+        x, t, cond, m.context_kv(context), mouse, keyboard, cache, 1, commit=1, still_memory=sm),
+        static_argnames="sm")
+    from solaris_env.world_model.action_module import window_at
+    cache = kv_cache.init_cache(cfg, 1, jnp.float32)
+    cache = cache.replace(latent=jax.random.normal(jax.random.key(7), cache.latent.shape))
+    cond = inp["cond"][:, :, 1:2].at[..., 0].set(0.0)  # not a given frame
+    mouse = window_at(jnp.zeros_like(inp["mouse"]), cfg, 1).at[:, 1, ..., 0].set(0.5)  # player 1 turns
+    keyboard = window_at(jnp.zeros_like(inp["keyboard"]), cfg, 1)
+    x, t = inp["clean"][:, :, 1:2], jnp.zeros_like(inp["t"][:, :, 1:2])
+    v0, c0 = fn(model, x, t, cond, inp["context"], mouse, keyboard, cache, 0.0)
+    v1, c1 = fn(model, x, t, cond, inp["context"], mouse, keyboard, cache, 0.6)
+    np.testing.assert_array_equal(v1, v0)
+    np.testing.assert_array_equal(c0.latent, x[:, :, 0])
+    np.testing.assert_allclose(c1.latent[:, 0], 0.6 * cache.latent[:, 0] + 0.4 * x[:, 0, 0], atol=1e-6)
+    np.testing.assert_array_equal(c1.latent[:, 1], x[:, 1, 0])  # turning
+    given = cond.at[..., 0].set(1.0)
+    _, c2 = fn(model, x, t, given, inp["context"], mouse, keyboard, cache, 0.6)
+    np.testing.assert_array_equal(c2.latent, x[:, :, 0])
+    with pytest.raises(ValueError, match="still_memory"):
+        fn(model, x, t, cond, inp["context"], mouse, keyboard, cache, 1.0)
+
+
+def test_the_streaming_model_blends_its_warp_input_while_still_and_nowhere_else():
+    """A rollout of the test preset with the camera warp: with still_memory m the cache's latent after each step is
+    m * the one before + (1 - m) * the committed frame while nobody moves, and the committed frame once a player
+    turns; the frames of a still world differ from those without (the blend is the next frame's input)."""
+    from solaris_env.spaces import CAMERA_SCALE_DEG
+    from solaris_env.world_model.config import SamplerConfig
+    from test_world_model import first_frames, host, random_model
+    cfg = WorldModelConfig.test()
+    cfg = cfg.replace(dit=dataclasses.replace(cfg.dit, camera_warp=WARP))
+    plain = random_model(cfg)
+    model = plain.with_sampler(SamplerConfig(still_memory=0.5))
+    still = np.zeros((1, 2, model.frames_per_step, model.action_dim), np.float32)
+    turning = still.copy()
+    turning[:, 1, :, model.config.action.keyboard_dim] = 10.0 / CAMERA_SCALE_DEG  # player 1 turns left
+    state = model.init(first_frames(model, 1), jax.random.key(0))
+    ref = plain.init(first_frames(model, 1), jax.random.key(0))
+    for i, actions in enumerate((still, still, still, turning)):
+        before = host(state)
+        frames, state = model.step(state, actions)
+        ref_frames, ref = plain.step(ref, actions)
+        after = host(state)
+        committed = before.latent_BP1hwC[:, :, 0]
+        if i == 0:  # frame 0 is given: nothing to blend with
+            np.testing.assert_array_equal(after.dit_cache.latent[:, 0], committed)  # (B, 1, P, ...): DiT batch 1
+            np.testing.assert_array_equal(np.asarray(frames), np.asarray(ref_frames))
+            continue
+        blend = 0.5 * before.dit_cache.latent[:, 0] + 0.5 * committed
+        # the frame committed now was made by the previous step's actions: still for both players
+        np.testing.assert_allclose(after.dit_cache.latent[:, 0], blend, atol=1e-5)
+        if actions is turning:  # the frame player 1 turned for is committed by the next step, as it is
+            _, state = model.step(state, turning)
+            latent = host(state).dit_cache.latent[:, 0]
+            np.testing.assert_array_equal(latent[:, 1], after.latent_BP1hwC[:, 1, 0])
+            np.testing.assert_allclose(latent[:, 0], 0.5 * after.dit_cache.latent[:, 0, 0]
+                                       + 0.5 * after.latent_BP1hwC[:, 0, 0], atol=1e-5)
+    assert not np.array_equal(np.asarray(frames), np.asarray(ref_frames))
