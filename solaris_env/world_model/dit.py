@@ -175,12 +175,13 @@ def _still_memories(previous_BPhwC: jax.Array, x_BPFhwC: jax.Array, still_BPF: j
     passes on itself, or where ``still_BPF`` holds, ``memory`` * its own previous latent + (1 - ``memory``) *
     itself. ``still_BPF`` None or ``memory`` 0: the frames themselves, as teacher forcing reads them."""
     prev = previous_BPhwC.astype(x_BPFhwC.dtype)
+    if not memory or still_BPF is None:
+        return jnp.concatenate([prev[:, :, None], x_BPFhwC[:, :, :-1]], axis=2), x_BPFhwC
     prevs, memories = [], []
-    for f in range(x_BPFhwC.shape[2]):
+    for f in range(x_BPFhwC.shape[2]):  # F is 1 or 2 in a rollout: a frame's memory is the next one's input
         own = x_BPFhwC[:, :, f]
-        if memory and still_BPF is not None:
-            blend = memory * prev.astype(jnp.float32) + (1.0 - memory) * own.astype(jnp.float32)
-            own = jnp.where(still_BPF[:, :, f, None, None, None], blend.astype(own.dtype), own)
+        blend = memory * prev.astype(jnp.float32) + (1.0 - memory) * own.astype(jnp.float32)
+        own = jnp.where(still_BPF[:, :, f, None, None, None], blend.astype(own.dtype), own)
         prevs.append(prev)
         memories.append(own)
         prev = own
