@@ -850,7 +850,8 @@ def dream_rollouts(env, rollouts: Sequence[Rollout], dream_seed: int = 0,
         for i in idx:  # DreamParallelEnv.reset, world by world
             rng = episode_rng(None, rollouts[i].seed + dream_seed)
             first_PHW3, _ = env.start_frames.from_options({"engine_state": rollouts[i].start})
-            states.append(model.init(first_PHW3[None], int(rng.integers(2**31 - 1))))
+            poses = rollouts[i].start.poses[None] if model.config.dit.partner_map else None  # docs/model.md §8.6
+            states.append(model.init(first_PHW3[None], int(rng.integers(2**31 - 1)), poses=poses))
         state = jax.tree.map(lambda *leaves: jnp.concatenate(leaves, axis=0), *states)
         frames = [[np.array(state.frame0_BPHW3[j, learner])] for j in range(len(idx))]
         withins: list[list[float]] = [[] for _ in idx]

@@ -219,7 +219,7 @@ class DreamParallelEnv(PlayerViewsEnv, ParallelEnv):
         rng = episode_rng(self.np_random, seed)  # no seed: continue the episode stream (Gymnasium rule)
         first_PHW3, start = given if given is not None else self.start_frames.sample(rng)
         model_seed = int(rng.integers(2**31 - 1))
-        self._state = self.model.init(first_PHW3[None], model_seed)
+        self._state = self.model.init(first_PHW3[None], model_seed, poses=self._start_poses())
         self.np_random = rng
         self._frames = _read_only(np.array(self._state.frame0_BPHW3)[0])  # a copy: the state is donated later
         self._step_frames = self._frames[:, None]
@@ -229,6 +229,16 @@ class DreamParallelEnv(PlayerViewsEnv, ParallelEnv):
         self.task.reset(self._frames)
         return self._observations(), {a: {"step": 0, **start, "camera_pending": np.zeros(2, np.float32)}
                                       for a in self.agents}
+
+    def _start_poses(self) -> np.ndarray | None:
+        """(1, P, 5) the start's poses for a model with the partner map (docs/model.md §8.6), else None."""
+        if not self.model.config.dit.partner_map:
+            return None
+        if self.start_frames.poses is None:
+            raise ValueError("this model reads the partner map (dit.partner_map), which needs the players' poses: "
+                             "start it from an engine game (start_states 'engine' or a list of EngineState, or "
+                             "reset options={'engine_state': ...}), not from frames alone")
+        return self.start_frames.poses[None]
 
     def step(self, actions: dict[str, Any]) -> tuple[dict, dict, dict, dict, dict]:
         if self._state is None or not self.agents:

@@ -76,6 +76,12 @@ class EngineState:
     def tick(self) -> int:
         return self._game.tick
 
+    @property
+    def poses(self) -> np.ndarray:
+        """(P, 5) float32 every player's [x, y, z, yaw, pitch]: feet in blocks, camera in Mineflayer radians (the
+        start a partner-map model dead reckons from, ``WorldModel.init(..., poses=)``)."""
+        return np.array([[*p.pos, p.yaw, p.pitch] for p in self._game.players], np.float32)
+
 
 def check_engine_state(state: Any, agents: list[str]) -> EngineState:
     """``options["engine_state"]`` must be an EngineState whose players are exactly ``agents``."""

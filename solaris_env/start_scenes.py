@@ -173,6 +173,9 @@ class StartFrames:
     def __init__(self, start_states: Any, agents: Sequence[str], height: int, width: int):
         self.agents, self.height, self.width = list(agents), height, width
         self.kind, self._scenes, self._states, self._engine_env = self._parse(start_states)
+        # the players' poses (P, 5) of the last start that ``sample`` / ``from_options`` gave, where an engine game
+        # made it (``EngineState.poses``); None for frames alone (bundled scenes, given frames)
+        self.poses: np.ndarray | None = None
 
     def _parse(self, start_states):
         if isinstance(start_states, str):
@@ -200,11 +203,13 @@ class StartFrames:
 
     def sample(self, rng: np.random.Generator) -> tuple[np.ndarray, dict]:
         """(P, H, W, 3) uint8 start frames and an info dict saying which start was used."""
+        self.poses = None
         if self._scenes is not None:
             i = int(rng.integers(len(self._scenes)))
             return self._scenes[i], {"start": self.kind, "scene": i}
         if self._states is not None:
             i = int(rng.integers(len(self._states)))
+            self.poses = self._states[i].poses
             return self.render_state(self._states[i]), {"start": self.kind, "scene": i}
         seed = int(rng.integers(2**31 - 1))
         return self._fresh_engine_frames(seed), {"start": "engine", "engine_seed": seed}
@@ -213,6 +218,7 @@ class StartFrames:
         """Start frames given in ``reset`` options (``"frames"`` or ``"engine_state"``), else None."""
         from solaris_env.env_common import check_agent_frames
 
+        self.poses = None
         if "frames" in options and "engine_state" in options:
             raise ValueError("options may give 'frames' or 'engine_state', not both")
         if "frames" in options:
@@ -221,6 +227,7 @@ class StartFrames:
             from solaris_env.real_env import check_engine_state
 
             state = check_engine_state(options["engine_state"], self.agents)
+            self.poses = state.poses
             return self.render_state(state), {"start": "engine_state"}
         return None
 
@@ -236,6 +243,7 @@ class StartFrames:
 
             self._engine_env = RealParallelEnv(num_players=len(self.agents), resolution=(self.height, self.width))
         obs, _ = self._engine_env.reset(seed=seed)
+        self.poses = self._engine_env.engine_state().poses
         return np.stack([obs[a] for a in self.agents])
 
 

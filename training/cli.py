@@ -126,7 +126,7 @@ def cmd_action_conditioning(args) -> int:
     dest = with_action_conditioning(args.model, args.out, args.mouse_gain, camera_warp=args.camera_warp,
                                     walk_warp=args.walk_warp, previous_skip=args.previous_skip or None,
                                     warp_interp=args.warp_interp, jump_warp=args.jump_warp,
-                                    warp_geometry=args.warp_geometry)
+                                    warp_geometry=args.warp_geometry, partner_map=args.partner_map)
     print(f"wrote {dest}")
     return 0
 
@@ -249,6 +249,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="set DiTConfig.warp_geometry, what a camera turn does to the warped previous latent: "
                         "'shift' (uniform) or 'rotation' (the camera's rotation; the weights are kept; docs/model.md "
                         "8.1)")
+    g.add_argument("--partner-map", type=float, default=None, metavar="SCALE",
+                   help="set DiTConfig.partner_map (two players; the map's input scale, 0 = off): the DiT also reads "
+                        "where the other player's body is in each view, its patch embedding row starting at zero "
+                        "(docs/model.md 8.6)")
     g.add_argument("--out", required=True, help="the new model directory")
     g.set_defaults(func=cmd_action_conditioning)
     o = sub.add_parser("official-dit", help="a model's VAE and image encoder under a fresh DiT in the official "

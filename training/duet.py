@@ -51,6 +51,7 @@ class BotRecording:
     actions: Path
     times_T: np.ndarray  # (T,) float64 renderTime, strictly increasing
     act_T25: np.ndarray  # (T, 25) float32, camera_linear applied
+    pose_T5: np.ndarray | None = None  # (T, 5) float32 [x, y, z, yaw, pitch] per record; None if not recorded
 
     @property
     def num_records(self) -> int:
@@ -112,7 +113,10 @@ def _from_sidecar(path: Path, key: str, video: Path, actions: Path) -> BotRecord
         with np.load(path, allow_pickle=False) as z:
             if str(z["key"]) != key:
                 return None  # written for another version of the files
-            return BotRecording(video, actions, z["times_T"], z["act_T25"])
+            pose = z["pose_T5"] if "pose_T5" in z.files else None
+            if "pose_T5" not in z.files and "no_pose" not in z.files:
+                return None  # written before the poses were kept
+            return BotRecording(video, actions, z["times_T"], z["act_T25"], pose)
     except (OSError, KeyError, ValueError):  # none yet, or unreadable: validate again
         return None
 
@@ -122,7 +126,8 @@ def _write_sidecar(path: Path, key: str, recording: BotRecording) -> None:
     try:
         path.parent.mkdir(exist_ok=True)
         with open(tmp, "wb") as f:
-            np.savez(f, key=np.array(key), times_T=recording.times_T, act_T25=recording.act_T25)
+            poses = {"no_pose": np.zeros(0)} if recording.pose_T5 is None else {"pose_T5": recording.pose_T5}
+            np.savez(f, key=np.array(key), times_T=recording.times_T, act_T25=recording.act_T25, **poses)
         os.replace(tmp, path)
     except OSError as err:  # a read-only dataset: validate in every process
         logger.debug("episode index: no sidecar for %s (%s)", recording.video.name, err)
@@ -140,7 +145,17 @@ def _validated_recording(video: Path, actions: Path) -> BotRecording:
     times_T = _render_times(records, actions)
     if n_frames != len(records):
         raise EpisodeError(COUNT_MISMATCH, f"{video.name}: {n_frames} frames for {len(records)} records")
-    return BotRecording(video, actions, times_T, act_T25)
+    return BotRecording(video, actions, times_T, act_T25, _poses(records))
+
+
+def _poses(records: list) -> np.ndarray | None:
+    """(T, 5) float32 [x, y, z, yaw, pitch] of every record (feet in blocks; Mineflayer radians), or None when the
+    records carry no pose (the partner map, ``DiTConfig.partner_map``, then cannot be trained on them)."""
+    try:
+        pose = np.array([[float(r[k]) for k in ("x", "y", "z", "yaw", "pitch")] for r in records], np.float32)
+    except (KeyError, TypeError, ValueError):
+        return None
+    return pose if np.all(np.isfinite(pose)) else None
 
 class DuetDataset(EpisodeTable):
     """Two-player episodes in the Duet layout (docs/data-format.md §7.1), validated once at construction.

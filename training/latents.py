@@ -48,6 +48,7 @@ from flax import nnx
 from solaris_env.spaces import MODEL_ACTION_DIM
 from solaris_env.world_model.action_module import left_pad_actions
 from solaris_env.world_model.conditioning import first_frame_mask
+from solaris_env.world_model import partner as partner_lib
 from solaris_env.world_model.config import WorldModelConfig
 from solaris_env.world_model.dit import to_stream
 from solaris_env.world_model.world_model import frames_to_model
@@ -170,14 +171,16 @@ class LatentClips:
         self._background: threading.Thread | None = None
         self._background_error: BaseException | None = None
         self._ready_memo: tuple | None = None  # (key, ready_candidates' answer), see there
+        # the clips also carry both players' poses (``DiTConfig.partner_map``): ``load`` and ``next_batch`` "pose"
+        self.with_poses = False
 
-    def _player_recordings(self, segment) -> list[tuple[Path, np.ndarray, int]]:
-        """[(video, act_T25, start)] per player."""
+    def _player_recordings(self, segment) -> list[tuple[Path, np.ndarray, int, np.ndarray | None]]:
+        """[(video, act_T25, start, pose_T5 or None)] per player."""
         if isinstance(segment, SegmentMP):
             recs = self.dataset.recordings(segment.episode_id)
-            return [(r.video, r.act_T25, s) for r, s in zip(recs, (segment.start1, segment.start2))]
+            return [(r.video, r.act_T25, s, r.pose_T5) for r, s in zip(recs, (segment.start1, segment.start2))]
         episode = self.dataset.episode(segment.episode_id)
-        return [(episode.video, episode.act_T25, segment.start)]
+        return [(episode.video, episode.act_T25, segment.start, None)]
 
     def latents(self, video: Path) -> dict[str, np.ndarray]:
         """The video's cache tensors (``VideoEncoder.tensors``); encoded now if they are not ready, unless the
@@ -205,7 +208,7 @@ class LatentClips:
         ids = self.dataset.valid_ids if episode_ids is None else episode_ids
         videos = []
         for episode_id in ids:
-            videos += [video for video, _, _ in self._player_recordings(self._probe_segment(episode_id))
+            videos += [video for video, *_ in self._player_recordings(self._probe_segment(episode_id))
                        if video not in self._latents and video not in self._failed]
         return videos
 
@@ -319,7 +322,7 @@ class LatentClips:
         key = (id(sampler), self.num_ready, len(sampler.candidates), len(self._failed))
         if self._ready_memo is None or self._ready_memo[0] != key:
             ready = [e for e in sampler.candidates if self.dataset.is_valid(e) and all(
-                video in self._latents for video, _, _ in self._player_recordings(self._probe_segment(e)))]
+                video in self._latents for video, *_ in self._player_recordings(self._probe_segment(e)))]
             self._ready_memo = (key, ready if 0 < len(ready) < len(sampler.candidates) else None)
         return self._ready_memo[1]
 
@@ -327,12 +330,13 @@ class LatentClips:
         """A segment of the episode, to list its videos."""
         return SegmentMP(episode_id, 0, 0) if isinstance(self.dataset, DuetDataset) else SegmentSP(episode_id, 0)
 
-    def load(self, segment, num_frames: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """-> (x0 (P, F, h, w, C) f32, first frames (P, H, W, 3) uint8, actions (T, P, 25) f32)."""
+    def load(self, segment, num_frames: int) -> tuple[np.ndarray, ...]:
+        """-> (x0 (P, F, h, w, C) f32, first frames (P, H, W, 3) uint8, actions (T, P, 25) f32), and with
+        ``with_poses`` the poses of the clip's T frames (T, P, 5) f32 (frame j is record s + 1 + j)."""
         k = self.k
         num_latent = 1 + (num_frames - 1) // k
-        x0s, firsts, acts = [], [], []
-        for video, act_T25, start in self._player_recordings(segment):
+        x0s, firsts, acts, poses = [], [], [], []
+        for video, act_T25, start, pose_T5 in self._player_recordings(segment):
             s = snap_start(start, k)
             a = (s + 1) // k
             cached = self.latents(video)
@@ -345,7 +349,13 @@ class LatentClips:
             if s < 0:
                 act = np.concatenate([np.zeros((1, act_T25.shape[1]), np.float32), act])
             acts.append(act)
-        return np.stack(x0s), np.stack(firsts), np.stack(acts, axis=1)
+            if self.with_poses:
+                if pose_T5 is None:
+                    raise ValueError(f"{video.name}: its records carry no pose (x, y, z, yaw, pitch); the partner map "
+                                     "(dit.partner_map) trains on Duet recordings with poses")
+                poses.append(pose_T5[s + 1:s + 1 + num_frames])
+        out = (np.stack(x0s), np.stack(firsts), np.stack(acts, axis=1))
+        return out + (np.stack(poses, axis=1),) if self.with_poses else out
 
     def next_batch(self, sampler, batch_size: int, num_frames: int) -> dict[str, np.ndarray]:
         """Draw ``batch_size`` clips (skipping episodes that fail, like ``training.samplers.next_batch``);
@@ -353,8 +363,8 @@ class LatentClips:
         whose latents are ready (``ready_candidates``)."""
         among = self.ready_candidates(sampler) if self._background is not None else None
         out = draw_loaded(sampler, lambda segment: self.load(segment, num_frames), batch_size, among=among)
-        x0, first, act = (np.stack(parts) for parts in zip(*out))
-        return {"x0": x0, "first": first, "act": act}
+        arrays = [np.stack(parts) for parts in zip(*out)]
+        return dict(zip(("x0", "first", "act", "pose"), arrays))
 
 
 def batch_spec(cfg: WorldModelConfig, batch_size: int, num_frames: int) -> dict[str, jax.ShapeDtypeStruct]:
@@ -362,7 +372,8 @@ def batch_spec(cfg: WorldModelConfig, batch_size: int, num_frames: int) -> dict[
     b, p, f = batch_size, cfg.num_players, cfg.vae.latent_frames(num_frames)
     return {"x0": jax.ShapeDtypeStruct((b, p, f, cfg.latent_height, cfg.latent_width, cfg.latent_channels), np.float32),
             "first": jax.ShapeDtypeStruct((b, p, cfg.frame_height, cfg.frame_width, 3), np.uint8),
-            "act": jax.ShapeDtypeStruct((b, num_frames, p, MODEL_ACTION_DIM), np.float32)}
+            "act": jax.ShapeDtypeStruct((b, num_frames, p, MODEL_ACTION_DIM), np.float32),
+            **({"pose": jax.ShapeDtypeStruct((b, num_frames, p, 5), np.float32)} if cfg.dit.partner_map else {})}
 
 
 def make_prepare_latents(cfg: WorldModelConfig, vae, encoder):
@@ -370,7 +381,7 @@ def make_prepare_latents(cfg: WorldModelConfig, vae, encoder):
     ``training.step.prepare_batch``) from cached latents; the image encoder runs on the first frames."""
     (vg, vs), (eg, es) = nnx.split(vae), nnx.split(encoder)
 
-    def prepare(vae_state, enc_state, x0, first, act):
+    def prepare(vae_state, enc_state, x0, first, act, pose=None):
         b, p, f = x0.shape[:3]
         first_flat = frames_to_model(first.reshape((b * p,) + first.shape[2:]))
         context = nnx.merge(eg, enc_state)(first_flat)
@@ -382,6 +393,10 @@ def make_prepare_latents(cfg: WorldModelConfig, vae, encoder):
         else:  # the Wan layout encodes gray frames after the first: run the VAE
             from solaris_env.world_model.conditioning import first_frame_cond
             cond = first_frame_cond(nnx.merge(vg, vae_state), first_flat, f).reshape((b, p, f) + x0.shape[3:5] + (-1,))
+        if cfg.dit.partner_map:  # each player's view of the other, per latent frame (partner.py)
+            maps = partner_lib.partner_maps(pose, *x0.shape[3:5])  # (B, T, P, h, w)
+            maps = partner_lib.latent_frame_maps(jnp.moveaxis(maps, 1, 2), cfg.frames_per_step)  # (B, P, F, h, w)
+            cond = partner_lib.with_partner(cond, maps, cfg.mask_channels, cfg.dit.partner_map)
         actions = left_pad_actions(act.astype(jnp.float32).transpose(0, 2, 1, 3), cfg.action_left_padding)
         kb = cfg.action.keyboard_dim
         unfold = lambda a: to_stream(cfg, jax.lax.stop_gradient(a))
@@ -390,8 +405,13 @@ def make_prepare_latents(cfg: WorldModelConfig, vae, encoder):
                 "mouse": to_stream(cfg, actions[..., kb:]), "keyboard": to_stream(cfg, actions[..., :kb])}
 
     jitted = jax.jit(prepare)
-    return lambda batch: jitted(vs, es, jnp.asarray(batch["x0"]), jnp.asarray(batch["first"]),
-                                jnp.asarray(batch["act"]))
+
+    def run(batch):
+        if cfg.dit.partner_map and "pose" not in batch:
+            raise ValueError("dit.partner_map is on but the batch has no 'pose' (LatentClips.with_poses)")
+        pose = jnp.asarray(batch["pose"]) if cfg.dit.partner_map else None
+        return jitted(vs, es, jnp.asarray(batch["x0"]), jnp.asarray(batch["first"]), jnp.asarray(batch["act"]), pose)
+    return run
 
 
 def latent_clips(dataset, cfg: WorldModelConfig, vae, cache_root: Path, canonical_dir: Path | None = None

@@ -165,6 +165,8 @@ class FlowStageConfig(StageConfig):
     test_every: int = _field(0, low=0)  # held-out loss this often (``step.make_test_loss``); 0: never
     test_batches: int = _field(16, low=1)  # fixed batches of the data's test split it averages over
     remat: bool = _field(True)  # the backward pass recomputes each DiT layer (``step.make_train_step``)
+    # the partner map only: the share of frames whose partner cells the camera warp's input loses (``step.drop_partner``)
+    partner_dropout: float = _field(0.0, low=0, high=1)
 
 
 @dataclass(frozen=True, kw_only=True)

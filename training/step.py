@@ -129,6 +129,9 @@ def prepare_batch(vae, image_encoder, obs_BTPHW3: jax.Array, act_BTP25: jax.Arra
         raise ValueError(f"obs {obs_BTPHW3.shape} / act {act_BTP25.shape} do not match (B, T, P={cfg.num_players}, "
                          f"H={cfg.frame_height}, W={cfg.frame_width}, 3) / (B, T, P, 25)")
     num_frames = cfg.vae.latent_frames(t)  # raises unless T = 1 + k * (F - 1)
+    if cfg.dit.partner_map:
+        raise ValueError("dit.partner_map needs the players' poses, which frames and actions do not carry: train and "
+                         "sample it from latent clips (training.latents, LatentClips.with_poses)")
     video = frames_to_model(obs_BTPHW3).transpose(0, 2, 1, 3, 4, 5).reshape(b * p, t, h, w, 3)  # (B*P, T, H, W, 3)
     first_frames = video[:, 0]
     x0 = vae.encode(video)  # (B*P, F, h, w, C)
@@ -152,11 +155,11 @@ def make_loss_fn(graphdef: nnx.GraphDef, entry_point_name: str, remat: bool = Fa
     if entry_point_name not in FLOW_MATCHING_ENTRY_POINTS:
         raise ValueError(f"entry_point_name must be one of {FLOW_MATCHING_ENTRY_POINTS}, got {entry_point_name!r}")
 
-    def loss_fn(params, rest, batch, t_BPF, noise):
+    def loss_fn(params, rest, batch, t_BPF, noise, clean=None):
         dit = nnx.merge(graphdef, params, rest)
         forward = functools.partial(getattr(dit, entry_point_name), remat=remat)
         if dit.cfg.dit.camera_warp_enabled:  # the warp reads the clean previous frame, as a rollout commits it
-            forward = functools.partial(forward, clean=batch["x0"])
+            forward = functools.partial(forward, clean=batch["x0"] if clean is None else clean)
         return flow_matching_loss(forward, *(batch[k] for k in BATCH_KEYS), t_BPF, noise)
 
     return loss_fn
@@ -184,8 +187,23 @@ def make_test_loss(graphdef: nnx.GraphDef, entry_point_name: str, noise_type: st
     return lambda params, rest: jnp.mean(jnp.stack([jitted(params, rest, b, i) for i, b in enumerate(batches)]))
 
 
+def drop_partner(x0: jax.Array, cond: jax.Array, mask_channels: int, key: jax.Array, share: float) -> jax.Array:
+    """The clean latents the camera warp reads (``clean``), in a ``share`` of the frames (B, P, F) with the cells
+    the partner map marks (``DiTConfig.partner_map``; grown by one cell) replaced by the frame's mean over its other
+    cells: the next frame must then draw the partner from the map, as a rollout must where its own frame lost it."""
+    marked = cond[..., mask_channels] > 0  # (B, P, F, h, w)
+    grown = jax.lax.reduce_window(marked.astype(jnp.float32), 0.0, jax.lax.max, (1, 1, 1, 3, 3), (1, 1, 1, 1, 1),
+                                  "SAME") > 0
+    chosen = jax.random.bernoulli(key, share, x0.shape[:3])[..., None, None]
+    drop = (grown & chosen)[..., None]
+    keep = (~grown)[..., None].astype(x0.dtype)
+    fill = (x0 * keep).sum(axis=(-3, -2), keepdims=True) / jnp.maximum(keep.sum(axis=(-3, -2), keepdims=True), 1.0)
+    return jnp.where(drop, fill, x0)
+
+
 def make_train_step(graphdef: nnx.GraphDef, entry_point_name: str, noise_type: str,
-                    tx: optax.GradientTransformation, ema_decay: float = 0.999, remat: bool = False) -> Callable:
+                    tx: optax.GradientTransformation, ema_decay: float = 0.999, remat: bool = False,
+                    partner_dropout: float = 0.0, mask_channels: int = 0) -> Callable:
     """-> jitted ``train_step(state, batch) -> (state, metrics)``; ``state`` is donated. ``remat``: the backward
     pass recomputes each DiT layer (``make_loss_fn``): the same update, in less memory; on our 2-core CPUs, whose
     train step waits on memory, also 1.3-1.4x the steps per second (docs/training.md, "Stage configs").
@@ -205,7 +223,10 @@ def make_train_step(graphdef: nnx.GraphDef, entry_point_name: str, noise_type: s
         x0 = batch["x0"]
         t_BPF = sample_timesteps(k_t, x0.shape[:3], noise_type)
         noise = jax.random.normal(k_noise, x0.shape, jnp.float32)
-        loss, grads = jax.value_and_grad(loss_fn)(state.params, state.rest, batch, t_BPF, noise)
+        clean = None
+        if partner_dropout:
+            clean = drop_partner(x0, batch["cond"], mask_channels, jax.random.fold_in(k_t, 7), partner_dropout)
+        loss, grads = jax.value_and_grad(loss_fn)(state.params, state.rest, batch, t_BPF, noise, clean)
         return apply_gradients(state, loss, grads, tx, ema_decay)
 
     return jax.jit(train_step, donate_argnums=(0,))

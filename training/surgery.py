@@ -112,7 +112,7 @@ def with_action_conditioning(model: str | Path, dest: str | Path, mouse_input_ga
                              camera_warp: tuple[float, float] | None = None,
                              walk_warp: float | None = None, previous_skip: bool | None = None,
                              warp_interp: str | None = None, jump_warp: float | None = None,
-                             warp_geometry: str | None = None) -> Path:
+                             warp_geometry: str | None = None, partner_map: float | None = None) -> Path:
     """Write ``model`` under another action conditioning, computing the same function (None keeps a setting):
 
     * ``mouse_input_gain``: the mouse rows of every ``mouse_mlp`` first kernel scaled by old / new gain, so
@@ -132,6 +132,9 @@ def with_action_conditioning(model: str | Path, dest: str | Path, mouse_input_ga
     * ``warp_geometry``: sets ``DiTConfig.warp_geometry`` (what a turn does to the warped previous latent: a
       uniform shift or the camera's rotation); the weights are kept, the function changes wherever the camera
       turns.
+    * ``partner_map``: sets ``DiTConfig.partner_map`` (the map's input scale); turned on, the patch embedding's new
+      input row (the map, after the mask channels) starts at zero, so the function is unchanged until fine-tuning
+      teaches the DiT to read it; from a model that has it, only its scale changes.
     """
     base = WorldModel.load(model)
     old = base.config
@@ -149,6 +152,10 @@ def with_action_conditioning(model: str | Path, dest: str | Path, mouse_input_ga
         dit = dataclasses.replace(dit, warp_interp=warp_interp)
     if warp_geometry is not None:
         dit = dataclasses.replace(dit, warp_geometry=warp_geometry)
+    if partner_map is not None:
+        dit = dataclasses.replace(dit, partner_map=float(partner_map))
+    if old.dit.partner_map and not dit.partner_map:
+        raise ValueError(f"{model} was trained with partner_map; dropping it would drop its patch embedding's map row")
     if old.dit.previous_skip and not dit.previous_skip:
         raise ValueError(f"{model} was trained with previous_skip; dropping it would drop its trained skip gates")
     if old.dit.camera_warp_enabled and not dit.camera_warp_enabled:
@@ -156,11 +163,15 @@ def with_action_conditioning(model: str | Path, dest: str | Path, mouse_input_ga
                          "patch embedding's trained warp rows")
     cfg = old.replace(action=action, dit=dit)
     dit_state, vae_state, encoder_state = base.params
-    if cfg.patch_in_channels != old.patch_in_channels:  # the warped previous latent's rows, at zero
-        pe = dit_state["patch_embedding"]["kernel"]
+    pe = dit_state["patch_embedding"]["kernel"]
+    if dit.partner_map and not old.dit.partner_map:  # the map's row after the noisy latent and the mask, at zero
+        k = pe.get_value()
+        at = old.out_channels + old.mask_channels
+        pe.set_value(jnp.concatenate([k[..., :at, :], jnp.zeros_like(k[..., :1, :]), k[..., at:, :]], axis=-2))
+    if cfg.patch_in_channels != pe.get_value().shape[-2]:  # the warped previous latent's rows, at zero
         k = pe.get_value()
         pad = [(0, 0)] * k.ndim
-        pad[-2] = (0, cfg.patch_in_channels - old.patch_in_channels)
+        pad[-2] = (0, cfg.patch_in_channels - k.shape[-2])
         pe.set_value(jnp.pad(k, pad))
     if dit.previous_skip and not old.dit.previous_skip:  # the gates at zero, as a fresh model has them
         dit_state["skip_gate"] = nnx.state(skip_gate(cfg, nnx.Rngs(0)), nnx.Param)
@@ -173,14 +184,14 @@ def with_action_conditioning(model: str | Path, dest: str | Path, mouse_input_ga
 def official_dit(model: str | Path, dest: str | Path, seed: int = 0) -> Path:
     """Write ``model``'s VAE and image encoder, unchanged, with a freshly initialised DiT (``seed``) in the
     official layout to ``dest``: our options at their official values (``DiTConfig.camera_warp``,
-    ``walk_warp``, ``jump_warp`` and ``previous_skip`` off, ``warp_interp`` linear, ``warp_geometry`` shift,
+    ``walk_warp``, ``jump_warp``, ``partner_map`` and ``previous_skip`` off, ``warp_interp`` linear, ``warp_geometry`` shift,
     ``ActionConfig.mouse_input_gain`` 1, and the sampler's ``noise_warp`` 0, fresh noise: it moves the noise with
     the camera warp, and ``still_memory`` 0), every size as ``model``'s. Trained through the DiT stages with the
     same steps and data as ``model``'s DiT, it is the control that measures those options (docs/training.md,
     "The control row")."""
     base = WorldModel.load(model_directory(model))
     old = base.config
-    dit = dataclasses.replace(old.dit, camera_warp=(0.0, 0.0), walk_warp=0.0, jump_warp=0.0,
+    dit = dataclasses.replace(old.dit, camera_warp=(0.0, 0.0), walk_warp=0.0, jump_warp=0.0, partner_map=0.0,
                               previous_skip=False, warp_interp="linear", warp_geometry="shift")
     cfg = old.replace(dit=dit, action=dataclasses.replace(old.action, mouse_input_gain=1.0),
                       sampler=dataclasses.replace(old.sampler, noise_warp=0.0, still_memory=0.0))

@@ -448,7 +448,9 @@ def _stage_latent_clips(out: Path, data_dir: Path, cfg: WorldModelConfig, vae, d
     """``dataset``'s latent clips, cached in ``out/latents`` under the stage's VAE."""
     from training.latents import latent_clips
 
-    return latent_clips(dataset, cfg, vae, Path(out) / "latents", canonical_dir=Path(data_dir) / "duet")
+    clips = latent_clips(dataset, cfg, vae, Path(out) / "latents", canonical_dir=Path(data_dir) / "duet")
+    clips.with_poses = cfg.dit.partner_map > 0
+    return clips
 
 
 def clip_stream(out: Path, data_dir: Path, cfg: WorldModelConfig, vae,
@@ -515,7 +517,11 @@ def train_flow(stage: str, out: str | Path, data_dir: str | Path, sc: FlowStageC
     else:
         tx = adamw
     graphdef, state = TrainState.create(dit, tx, rng=seed, ema=ema_decay > 0)
-    train_step = make_train_step(graphdef, fs.entry_point, fs.noise_type, tx, ema_decay, sc.remat)
+    if sc.partner_dropout and not cfg.dit.partner_map:
+        raise ValueError(f"partner_dropout={sc.partner_dropout} drops the cells the partner map marks; the model has "
+                         "no partner map (dit.partner_map)")
+    train_step = make_train_step(graphdef, fs.entry_point, fs.noise_type, tx, ema_decay, sc.remat,
+                                 sc.partner_dropout, cfg.mask_channels)
     from training.latents import batch_spec, make_prepare_latents
 
     batch_size = local_batch_size(sc.batch_size)

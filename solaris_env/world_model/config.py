@@ -77,6 +77,12 @@ class DiTConfig:
     # at the view's centre (``camera.turn_source``): cells away from the centre move faster, up to ~2.5x at the
     # side edges for the engine's 102-degree-wide view, and rows bend (docs/model.md §8.1).
     warp_geometry: str = "shift"
+    # Partner map (ours; 0 = off, the official model): one more conditioning channel, after the mask, this number
+    # times the share of each latent cell that the other player's body covers in this player's view
+    # (``partner.py``; from the recorded poses in training, dead reckoned from the start poses and the actions in a
+    # rollout; docs/model.md §8.6). The scale speeds up the learning of the channel's zero-initialised row, as
+    # ``ActionConfig.mouse_input_gain`` does for the mouse. Needs two players in ``attn`` layout.
+    partner_map: float = 0.0
 
     def __post_init__(self):
         _require(self.dim % self.num_heads == 0, f"dim={self.dim} must be divisible by num_heads={self.num_heads}")
@@ -101,6 +107,8 @@ class DiTConfig:
                  f"its (height, width) pixels per degree > 0, got {self.camera_warp}")
         _require(not self.previous_skip or self.camera_warp_enabled,
                  f"previous_skip={self.previous_skip} adds the camera warp's previous latent; it needs camera_warp on")
+        _require(math.isfinite(self.partner_map) and self.partner_map >= 0.0,
+                 f"partner_map must be a finite number >= 0 (the map's input scale; 0 = off), got {self.partner_map}")
         _require(self.head_dim % 2 == 0, f"head_dim={self.head_dim} must be even for RoPE")
         _require(self.multiplayer in MULTIPLAYER_METHODS,
                  f"multiplayer must be one of {MULTIPLAYER_METHODS}, got {self.multiplayer!r}")
@@ -374,6 +382,9 @@ class WorldModelConfig:
         _require(self.sampler.noise_warp == 0.0 or self.dit.camera_warp_enabled,
                  f"sampler.noise_warp={self.sampler.noise_warp} moves the noise by the camera warp's pixels per "
                  f"degree; it needs dit.camera_warp on")
+        _require(not self.dit.partner_map or (self.num_players == 2 and self.dit.multiplayer == "attn"),
+                 f"dit.partner_map maps each player's view of the other: it needs num_players=2 and multiplayer="
+                 f"'attn', got {self.num_players} and {self.dit.multiplayer!r}")
         _require(self.sampler.still_memory == 0.0 or self.dit.camera_warp_enabled,
                  f"sampler.still_memory={self.sampler.still_memory} blends the camera warp's input; it needs "
                  f"dit.camera_warp on")
@@ -410,10 +421,16 @@ class WorldModelConfig:
         return self.num_players if self.dit.multiplayer == "concat" else 1
 
     @property
+    def partner_channels(self) -> int:
+        """Conditioning channels of the partner map (``DiTConfig.partner_map``): 1 or 0."""
+        return int(self.dit.partner_map > 0)
+
+    @property
     def in_channels(self) -> int:
-        """Patch-embed input: noisy latent + mask + first-frame latent (36 for solaris)."""
+        """Patch-embed input: noisy latent + cond = [mask, partner map (``partner_channels``), first-frame latent]
+        (36 for solaris)."""
         c = self.players_in_channels
-        return c * (2 * self.latent_channels + self.mask_channels)
+        return c * (2 * self.latent_channels + self.mask_channels + self.partner_channels)
 
     @property
     def patch_in_channels(self) -> int:

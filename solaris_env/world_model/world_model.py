@@ -80,7 +80,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import nnx, struct
 
-from solaris_env.world_model import camera, checkpoint, kv_cache, noise_warp, sampler
+from solaris_env.world_model import camera, checkpoint, kv_cache, noise_warp, partner, sampler
 from solaris_env.world_model.components import COMPONENTS, abstract_modules
 from solaris_env.world_model.conditioning import first_frame_cond_next, first_frame_cond_start
 from solaris_env.world_model.config import SamplerConfig, VAEConfig, WorldModelConfig, preset
@@ -174,6 +174,10 @@ class WorldState:
     # noises (S = its initial noise and one re-noising draw per sampler step) and the turn's carried sub-pixel shift
     noise_BPShwC: jax.Array | None = None  # (B, P, S, h, w, C) f32
     noise_shift_BP2: jax.Array | None = None  # (B, P, 2) f32, (down, right) latent pixels in [-1/2, 1/2)
+    # the partner map only (``DiTConfig.partner_map``; None otherwise): the players' dead-reckoned poses and
+    # velocities after the last generated frame (``partner.track``) and that frame's map (``partner.partner_maps``)
+    track_BP7: jax.Array | None = None  # (B, P, partner.TRACK_STATE) f32
+    partner_BPhw: jax.Array | None = None  # (B, P, h, w) f32
 
     @property
     def num_worlds(self) -> int:
@@ -215,6 +219,7 @@ class Programs:
         self.timesteps = sampler.ar_schedule(cfg.sampler)
         self.noise_warp = float(cfg.sampler.noise_warp)  # 0: fresh noise for every frame (the reference)
         self.cond_frames = steady_cond_index(cfg.vae) + 1
+        self.partner = cfg.dit.partner_map > 0
         # the DiT split into (blocks, rest); the programs merge it with shape-only blocks (never read)
         self._dit_graphdef, blocks, _ = nnx.split(abstract_modules(cfg)[0], nnx.PathContains("blocks"), ...)
         self._blocks_shapes = blocks
@@ -270,6 +275,24 @@ class Programs:
         index = jnp.minimum(index, self.cond_frames - 1)
         return jax.lax.dynamic_slice_in_dim(ws.cond_BPFhwC, index, 1, axis=1)
 
+    def _with_map(self, cond_P1hwC, map_Phw):
+        """A frame's conditioning with its partner map (the model has one) or as it is."""
+        if not self.partner:
+            return cond_P1hwC
+        return partner.with_partner(cond_P1hwC, map_Phw[:, None], self.cfg.mask_channels, self.cfg.dit.partner_map)
+
+    def _tracked(self, ws: WorldState, actions_PkA):
+        """(the new frame's partner map (P, h, w), the tracker state after its k ticks (P, 7)): the poses dead
+        reckoned tick by tick from this step's actions, the map averaged over the k ticks as the latent sums its k
+        frames (``partner.latent_frame_maps``). (None, None) without the partner map."""
+        if not self.partner:
+            return None, None
+        kb = self.cfg.action.keyboard_dim
+        actions = actions_PkA.astype(jnp.float32)
+        poses_PK5, last = partner.track(ws.track_BP7, actions[..., kb:], actions[..., :kb])
+        maps = partner.partner_maps(jnp.moveaxis(poses_PK5, 1, 0), self.cfg.latent_height, self.cfg.latent_width)
+        return maps.mean(axis=0), last
+
     def _noise(self, frame_key, num_players: int):
         """(initial noise (P, 1, h, w, C), re-noising key) of one latent frame (fresh noise)."""
         cfg = self.cfg
@@ -322,7 +345,9 @@ class Programs:
         Returns (v of that pass, the cache with frame i - 1)."""
         i = ws.frame_index_B
         x = jnp.concatenate([ws.latent_BP1hwC, z], axis=1)  # (P, 2, h, w, C): [committed i - 1 (x0) ; noisy i]
-        cond = jnp.concatenate([self._cond_at(ws, i - 1), self._cond_at(ws, i)], axis=1)
+        new_map = self._tracked(ws, actions_PkA)[0]
+        cond = jnp.concatenate([self._with_map(self._cond_at(ws, i - 1), ws.partner_BPhw),
+                                self._with_map(self._cond_at(ws, i), new_map)], axis=1)
         actions = jnp.concatenate([ws.actions_BPWA, actions_PkA.astype(jnp.float32)], axis=1)  # windows i-1, i
         t = jnp.asarray([0.0, self.timesteps[0]], jnp.float32)
         v, cache = dit[0].decode(*self._dit_args(x, t, (cond, ws.context_kv, actions, ws.dit_cache), i - 1),
@@ -335,7 +360,8 @@ class Programs:
         dit = self._modules(params)[:2]
         z, k_renoise, _ = noise
         v, cache = self._first_pass(dit, ws, actions_PkA, z)
-        parts = (self._cond_at(ws, ws.frame_index_B), ws.context_kv, self._window(ws, actions_PkA), cache)
+        cond = self._with_map(self._cond_at(ws, ws.frame_index_B), self._tracked(ws, actions_PkA)[0])
+        parts = (cond, ws.context_kv, self._window(ws, actions_PkA), cache)
         return self._sample(dit, parts, z, k_renoise, ws.frame_index_B, first_v=v), cache
 
     def _first_pass_world(self, params, ws: WorldState, actions_PkA):
@@ -353,6 +379,9 @@ class Programs:
         next_key, _ = jax.random.split(ws.key_B)
         if carried is not None:
             ws = ws.replace(noise_BPShwC=carried[0], noise_shift_BP2=carried[1])
+        if self.partner:
+            new_map, track = self._tracked(ws, actions_PkA)
+            ws = ws.replace(track_BP7=track, partner_BPhw=new_map)
         return ws.replace(key_B=next_key, frame_index_B=ws.frame_index_B + 1,
                           actions_BPWA=self._window(ws, actions_PkA), dit_cache=dit_cache, vae_cache=vae_cache,
                           latent_BP1hwC=x0_P1hwC)
@@ -368,8 +397,9 @@ class Programs:
         _, rest = jax.lax.scan(next_cond, enc_state, None, length=self.cond_frames - 1)  # (Fc-1, P, h, w, Cc)
         return jnp.concatenate([cond0, jnp.moveaxis(rest, 0, 1)], axis=1)
 
-    def _init_world(self, params, first_PHW3_uint8, first_actions_PA, key):
-        """One world: encode the first frames, then generate and decode latent frame 0 (step 1 commits it)."""
+    def _init_world(self, params, first_PHW3_uint8, first_actions_PA, key, poses_P5=None):
+        """One world: encode the first frames, then generate and decode latent frame 0 (step 1 commits it).
+        ``poses_P5``: the players' poses at the first frame (the partner map only)."""
         cfg = self.cfg
         dit, layers, vae, encoder = self._modules(params)
         first = frames_to_model(first_PHW3_uint8)
@@ -380,7 +410,11 @@ class Programs:
         actions = jnp.repeat(first_actions_PA.astype(jnp.float32)[:, None], cfg.action_window, axis=1)
         cache = kv_cache.init_cache(cfg, 1)  # batch 1: the DiT sees one world at a time
         start = jnp.zeros((), jnp.int32)
-        parts = (cond[:, :1], context_kv, actions, cache)
+        track = map0 = None
+        if self.partner:
+            track = partner.track_state(poses_P5)
+            map0 = partner.partner_maps(poses_P5, cfg.latent_height, cfg.latent_width)
+        parts = (self._with_map(cond[:, :1], map0), context_kv, actions, cache)
         key, frame_key = jax.random.split(key)
         p = first.shape[0]
         noises = shift = None
@@ -394,13 +428,15 @@ class Programs:
         return WorldState(key_B=key, frame_index_B=start + 1, actions_BPWA=actions, context_BPMC=context,
                           context_kv=context_kv,
                           cond_BPFhwC=cond, dit_cache=cache, vae_cache=vae_cache, latent_BP1hwC=x0,
-                          frame0_BPHW3=frames_to_uint8(video[:, 0]), noise_BPShwC=noises, noise_shift_BP2=shift)
+                          frame0_BPHW3=frames_to_uint8(video[:, 0]), noise_BPShwC=noises, noise_shift_BP2=shift,
+                          track_BP7=track, partner_BPhw=map0)
 
     # -- batched over worlds (what gets jitted) -------------------------------------------------------
-    def init(self, params, first_frames_BPHW3, first_actions_BPA, rng):
+    def init(self, params, first_frames_BPHW3, first_actions_BPA, rng, poses_BP5=None):
         # one world at a time: dominated by the VAE encoder (cond table), which is faster unbatched on CPU
         keys = jax.random.split(rng, first_frames_BPHW3.shape[0])
-        return jax.lax.map(lambda args: self._init_world(params, *args), (first_frames_BPHW3, first_actions_BPA, keys))
+        return jax.lax.map(lambda args: self._init_world(params, *args),
+                           (first_frames_BPHW3, first_actions_BPA, keys) + (() if poses_BP5 is None else (poses_BP5,)))
 
     def step(self, params, state: WorldState, actions_BPkA):
         noise = jax.vmap(self._step_noise)(state, actions_BPkA)  # drawn once: the sampler and the next state
@@ -425,9 +461,9 @@ class Programs:
         # activations of P*k frames than with B*P*k (cache locality); the DiT is better batched.
         return jax.lax.map(lambda args: self._decode_world(params, *args), (state, x0_BP1hwC))
 
-    def reset_one(self, params, state: WorldState, index, first_PHW3, first_actions_PA, key):
+    def reset_one(self, params, state: WorldState, index, first_PHW3, first_actions_PA, key, poses_P5=None):
         """Replace world ``index`` (traced int) by a fresh world; the others are untouched."""
-        fresh = self._init_world(params, first_PHW3, first_actions_PA, key)
+        fresh = self._init_world(params, first_PHW3, first_actions_PA, key, poses_P5)
         return jax.tree.map(lambda old, new: old.at[index].set(new), state, fresh)
 
 
@@ -538,20 +574,24 @@ class WorldModel:
         return self.programs.cond_frames
 
     # -- streaming ------------------------------------------------------------------------------------
-    def init(self, first_frames, rng, first_actions=None) -> WorldState:
+    def init(self, first_frames, rng, first_actions=None, poses=None) -> WorldState:
         """Start B worlds from their first frames.
 
         Args:
             first_frames: (B, P, H, W, 3) uint8.
             rng: int seed or PRNG key; world b uses ``jax.random.split(rng, B)[b]``.
             first_actions: optional (B, P, 25) action of frame 0 (left-padding value); default zeros.
+            poses: (B, P, 5) the players' [x, y, z, yaw, pitch] at the first frames (feet in blocks, Mineflayer
+                radians; ``real_env.EngineState.poses``): required by a model with ``dit.partner_map``, which
+                dead reckons them from the actions (docs/model.md §8.6); not read by any other model.
         Returns:
             the state; ``state.frame0_BPHW3`` is latent frame 0 decoded (one frame per player).
         """
         first_frames = self._check_frames(first_frames, "first_frames")
         b = first_frames.shape[0]
         first_actions = self._check_first_actions(first_actions, b)
-        return self._init_fn(self._param_leaves, first_frames, first_actions, _raw_key(rng))
+        extra = (self._check_poses(poses, b),) if self.programs.partner else ()
+        return self._init_fn(self._param_leaves, first_frames, first_actions, _raw_key(rng), *extra)
 
     def step(self, state: WorldState, actions) -> tuple[jax.Array, WorldState]:
         """Generate one latent frame per world: ``actions`` (B, P, k, 25) -> (frames (B, P, k, H, W, 3)
@@ -561,13 +601,14 @@ class WorldModel:
                                       "(B, P, k, 25)")
         return self._step_fn(self._param_leaves, state, actions)
 
-    def reset_worlds(self, state: WorldState, mask_B, first_frames, rng=None, first_actions=None) -> WorldState:
+    def reset_worlds(self, state: WorldState, mask_B, first_frames, rng=None, first_actions=None,
+                     poses=None) -> WorldState:
         """Restart the worlds where ``mask_B`` is True from ``first_frames[b]`` (other rows ignored).
 
         Each reset world is re-initialised exactly like ``init`` (one compiled program for any world
         index, so nothing recompiles); the other worlds' entries are untouched. ``rng=None`` continues
         each reset world's own key stream; with ``rng``, world b gets ``split(rng, B)[b]`` as in ``init``.
-        ``state`` is donated.
+        ``state`` is donated. ``poses`` (B, P, 5) as ``init`` (rows of the reset worlds read).
         """
         self._check_state(state)
         b = state.num_worlds
@@ -576,11 +617,13 @@ class WorldModel:
             raise ValueError(f"mask_B has shape {mask.shape} dtype {mask.dtype}; expected ({b},) bool")
         first_frames = self._check_frames(first_frames, "first_frames", batch=b)
         first_actions = self._check_first_actions(first_actions, b)
+        poses = self._check_poses(poses, b) if self.programs.partner else None
         # host copy: the state's buffers are donated by the first reset below
         keys = np.asarray(state.key_B if rng is None else jax.random.split(_raw_key(rng), b))
         for index in np.flatnonzero(mask):
+            extra = () if poses is None else (poses[index],)
             state = self._reset_fn(self._param_leaves, state, jnp.int32(index), first_frames[index],
-                                   first_actions[index], keys[index])
+                                   first_actions[index], keys[index], *extra)
         return state
 
     # -- input checks (host side, before any compute) -----------------------------------------------
@@ -619,6 +662,18 @@ class WorldModel:
         if first_actions is None:
             return jnp.zeros((batch, self.num_players, self.action_dim), jnp.float32)
         return self._check_actions(first_actions, batch, (), "first_actions", "(B, P, 25)")
+
+    def _check_poses(self, poses, batch: int) -> jax.Array:
+        if poses is None:
+            raise ValueError("this model reads the partner map (dit.partner_map): init / reset_worlds need poses "
+                             f"(B, P={self.num_players}, 5) [x, y, z, yaw, pitch] of the first frames "
+                             "(real_env.EngineState.poses)")
+        host = np.asarray(poses, np.float32)
+        if host.shape != (batch, self.num_players, partner.POSE):
+            raise ValueError(f"poses has shape {host.shape}; expected (B, P, 5) = {(batch, self.num_players, 5)}")
+        if not np.isfinite(host).all():
+            raise ValueError("poses contains NaN or inf values; every entry must be finite")
+        return jnp.asarray(host)
 
     def _check_state(self, state) -> None:
         if not isinstance(state, WorldState):

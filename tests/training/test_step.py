@@ -264,3 +264,23 @@ def test_test_loss_is_the_train_objective_on_fixed_draws(modules, batch):
         make_test_loss(graphdef, entry, noise_type, [])
     with pytest.raises(ValueError, match="noise_type"):
         make_test_loss(graphdef, entry, "uniform", batches)
+
+
+def test_drop_partner_fills_the_marked_cells_of_the_chosen_frames():
+    """``drop_partner`` (the partner map's training dropout): the marked cells grown by one, in the chosen frames
+    only, take the mean of the frame's other cells; share 0 keeps the latents."""
+    from training.step import drop_partner
+
+    x0 = jax.random.normal(jax.random.key(0), (2, 2, 3, 6, 6, 4))
+    cond = jnp.zeros((2, 2, 3, 6, 6, 5)).at[:, :, :, 2, 3, 4].set(0.5)  # channel 4: the map, one cell marked
+    np.testing.assert_array_equal(drop_partner(x0, cond, 4, jax.random.key(1), 0.0), x0)
+    out = np.asarray(drop_partner(x0, cond, 4, jax.random.key(1), 1.0))
+    region = np.zeros((6, 6), bool)
+    region[1:4, 2:5] = True
+    np.testing.assert_array_equal(out[..., ~region, :], np.asarray(x0)[..., ~region, :])
+    fill = np.asarray(x0)[..., ~region, :].mean(axis=-2)  # (B, P, F, C)
+    np.testing.assert_allclose(out[..., region, :], np.broadcast_to(fill[..., None, :], out[..., region, :].shape),
+                               atol=1e-5)
+    half = np.asarray(drop_partner(x0, cond, 4, jax.random.key(3), 0.5))
+    changed = np.abs(half - np.asarray(x0)).sum(axis=(-3, -2, -1)) > 0  # (B, P, F)
+    assert 0 < changed.sum() < changed.size

@@ -20,7 +20,7 @@ def _leaves(state):
 def test_official_dit_keeps_the_autoencoder_and_starts_a_fresh_official_dit(tmp_path):
     base = preset("test")
     ours = base.replace(dit=dataclasses.replace(base.dit, camera_warp=(0.1, 0.06), walk_warp=0.1, previous_skip=True,
-                                                warp_geometry="rotation"),
+                                                warp_geometry="rotation", partner_map=10.0),
                         action=dataclasses.replace(base.action, mouse_input_gain=10.0),
                         sampler=dataclasses.replace(base.sampler, noise_warp=0.9, still_memory=0.5))  # as shipped
     WorldModel.from_config(ours, seed=3).save(tmp_path / "ours")
@@ -29,6 +29,7 @@ def test_official_dit_keeps_the_autoencoder_and_starts_a_fresh_official_dit(tmp_
     src, control = WorldModel.load(tmp_path / "ours"), WorldModel.load(tmp_path / "control")
     cfg = control.config
     assert cfg.dit.camera_warp == (0.0, 0.0) and not cfg.dit.camera_warp_enabled and cfg.dit.walk_warp == 0.0
+    assert cfg.dit.partner_map == 0.0 and cfg.partner_channels == 0
     assert cfg.dit.warp_geometry == "shift"  # the rotation reads its field of view from the warp it no longer has
     assert not cfg.dit.previous_skip and "skip_gate" not in control.params[0]
     assert cfg.action.mouse_input_gain == 1.0
