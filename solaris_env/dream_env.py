@@ -35,7 +35,7 @@ from solaris_env.spaces import (
     noop,
     step_ticks,
 )
-from solaris_env.start_scenes import StartFrames
+from solaris_env.start_scenes import POSES_NEEDED, StartFrames
 from solaris_env.tasks import make_task
 
 ENGINE_TICKS_PER_SECOND = 20
@@ -235,9 +235,7 @@ class DreamParallelEnv(PlayerViewsEnv, ParallelEnv):
         if not self.model.config.dit.partner_map:
             return None
         if self.start_frames.poses is None:
-            raise ValueError("this model reads the partner map (dit.partner_map), which needs the players' poses: "
-                             "start it from an engine game (start_states 'engine' or a list of EngineState, or "
-                             "reset options={'engine_state': ...}), not from frames alone")
+            raise ValueError(POSES_NEEDED)
         return self.start_frames.poses[None]
 
     def step(self, actions: dict[str, Any]) -> tuple[dict, dict, dict, dict, dict]:

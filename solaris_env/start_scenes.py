@@ -161,6 +161,12 @@ def load_start_scenes(num_players: int, height: int, width: int, path: Path = SC
 # ---------------------------------------------------------------------------------------------
 
 
+# what a dream env raises when a partner-map model (docs/model.md §8.6) is started without the players' poses
+POSES_NEEDED = ("this model reads the partner map (dit.partner_map), which needs the players' poses: start it from "
+                "an engine game (start_states 'engine' or a list of EngineState, or reset options={'engine_state': "
+                "...}), not from frames alone")
+
+
 class StartFrames:
     """The start-frame source of a dream env (see the module docstring for ``start_states``).
 

@@ -47,7 +47,7 @@ from solaris_env.env_common import (
     side_by_side,
 )
 from solaris_env.spaces import make_action_space
-from solaris_env.start_scenes import StartFrames
+from solaris_env.start_scenes import POSES_NEEDED, StartFrames
 from solaris_env.tasks import make_task
 
 
@@ -119,12 +119,12 @@ class DreamVectorEnv(VectorEnv):
         given = self._given_starts(options, mask_N)
         fresh = seed is not None or self._np_random is None  # else continue the stream (on a copy, kept at the end)
         rng, rng_seed = seeding.np_random(seed) if fresh else (episode_rng(self._np_random, None), None)
-        first_NPHW3, starts = self._start_frames(given, mask_N, rng)
+        first_NPHW3, starts, poses_NP5 = self._start_frames(given, mask_N, rng)
         model_seed = int(rng.integers(2**31 - 1))
         if mask_N.all():
-            self._state = self.model.init(first_NPHW3, model_seed)
+            self._state = self.model.init(first_NPHW3, model_seed, poses=poses_NP5)
         else:
-            self._state = self.model.reset_worlds(self._state, mask_N, first_NPHW3, model_seed)
+            self._state = self.model.reset_worlds(self._state, mask_N, first_NPHW3, model_seed, poses=poses_NP5)
         if fresh:
             self._np_random_seed = rng_seed
         self._np_random = rng
@@ -164,21 +164,32 @@ class DreamVectorEnv(VectorEnv):
         if len(states) != self.num_envs:
             raise ValueError(f"options['engine_state'] must be one EngineState or a list of {self.num_envs}, "
                              f"got a list of {len(states)}")
-        return [self.start_frames.from_options({"engine_state": states[i]}) if m else None
+        return [(*self.start_frames.from_options({"engine_state": states[i]}), self.start_frames.poses) if m else None
                 for i, m in enumerate(mask_N)]
 
     def _start_frames(self, given: list | np.ndarray | None, mask_N: np.ndarray,
-                      rng: np.random.Generator) -> tuple[np.ndarray, list]:
-        """(N, P, H, W, 3) start frames (rows outside ``mask_N`` are filler) and per-world start infos: the
-        ``given`` ones (``_given_starts``), the others sampled from ``start_states`` with ``rng``."""
+                      rng: np.random.Generator) -> tuple[np.ndarray, list, np.ndarray | None]:
+        """(N, P, H, W, 3) start frames (rows outside ``mask_N`` are filler), per-world start infos and, for a
+        model with the partner map (docs/model.md §8.6), the start poses (N, P, 5) (else None): the ``given`` ones
+        (``_given_starts``), the others sampled from ``start_states`` with ``rng``."""
+        needs_poses = bool(self.model.config.dit.partner_map)
         if isinstance(given, np.ndarray):
-            return given, [{"start": "frames"} if m else None for m in mask_N]
+            if needs_poses:
+                raise ValueError(POSES_NEEDED)
+            return given, [{"start": "frames"} if m else None for m in mask_N], None
         shape = (self.num_envs, self.num_players, self.height, self.width, 3)
         out, starts = np.zeros(shape, np.uint8), [None] * self.num_envs
+        poses = np.zeros((self.num_envs, self.num_players, 5), np.float32)
         for i in np.flatnonzero(mask_N):
             start = None if given is None else given[i]
-            out[i], starts[i] = start if start is not None else self.start_frames.sample(rng)
-        return out, starts
+            if start is None:
+                start = (*self.start_frames.sample(rng), self.start_frames.poses)
+            out[i], starts[i], pose = start
+            if needs_poses and pose is None:
+                raise ValueError(POSES_NEEDED)
+            if pose is not None:
+                poses[i] = pose
+        return out, starts, poses if needs_poses else None
 
     def _restart(self, mask_N: np.ndarray) -> np.ndarray:
         """Bookkeeping after worlds were (re)initialised: observations, step counters, tasks."""
@@ -233,8 +244,9 @@ class DreamVectorEnv(VectorEnv):
         return obs, rewards_NP, terminations_N, truncations_N, infos
 
     def _autoreset(self, mask_N: np.ndarray) -> np.ndarray:
-        first_NPHW3, _ = self._start_frames(None, mask_N, self._np_random)
-        self._state = self.model.reset_worlds(self._state, mask_N, first_NPHW3, int(self._np_random.integers(2**31 - 1)))
+        first_NPHW3, _, poses_NP5 = self._start_frames(None, mask_N, self._np_random)
+        self._state = self.model.reset_worlds(self._state, mask_N, first_NPHW3, int(self._np_random.integers(2**31 - 1)),
+                                              poses=poses_NP5)
         return self._restart(mask_N)
 
     def _world_actions(self, actions: Any) -> tuple[np.ndarray, list[list[dict]], np.ndarray]:

@@ -217,3 +217,33 @@ def test_the_map_reaches_the_dit(tmp_path):
     far[:, 1, :3] = [40.0, 64.0, 40.0]  # Bravo out of Alpha's view, Alpha out of Bravo's
     frames = [np.asarray(model.step(model.init(first, 0, poses=p), actions[0])[0]) for p in (poses, far)]
     assert np.abs(frames[0].astype(int) - frames[1].astype(int)).max() > 0
+
+
+def test_the_dream_envs_pass_the_start_poses(tmp_path):
+    """The dream env and the vector env start a partner-map model from an engine game's poses, and refuse a start
+    from frames alone with a message that says why."""
+    from solaris_env.dream_env import DreamParallelEnv
+    from solaris_env.real_env import RealParallelEnv
+    from solaris_env.spaces import noop
+    from solaris_env.vector_env import DreamVectorEnv
+
+    _, pm = _partner_model(tmp_path)
+    h, w, _ = pm.frame_shape
+    real = RealParallelEnv(num_players=2, world="flat", resolution=(h, w))
+    starts = []
+    for seed in (0, 1):
+        real.reset(seed=seed)
+        starts.append(real.engine_state())
+    env = DreamParallelEnv(model=pm, start_states=starts)
+    env.reset(seed=0, options={"engine_state": starts[1]})
+    np.testing.assert_allclose(env._state.track_BP7[0, :, :5], starts[1].poses, atol=1e-5)
+    env.step({a: noop() for a in env.agents})
+    frames = {a: np.zeros((h, w, 3), np.uint8) for a in env.possible_agents}
+    with pytest.raises(ValueError, match="needs the players' poses"):
+        env.reset(seed=0, options={"frames": frames})
+    vec = DreamVectorEnv(2, model=pm, start_states=starts)
+    vec.reset(seed=0, options={"engine_state": starts})
+    np.testing.assert_allclose(vec._state.track_BP7[:, :, :5], np.stack([s.poses for s in starts]), atol=1e-5)
+    vec.reset(seed=1)  # sampled from the engine states
+    with pytest.raises(ValueError, match="needs the players' poses"):
+        DreamVectorEnv(2, model=pm, start_states=np.zeros((1, 2, h, w, 3), np.uint8)).reset(seed=0)
