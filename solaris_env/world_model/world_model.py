@@ -337,15 +337,16 @@ class Programs:
                                     self.cfg.sampler.num_train_timesteps, unroll=self.unroll, first_v=first_v,
                                     renoise=renoise if warped else None)
 
-    def _first_pass(self, dit, ws: WorldState, actions_PkA, z):
+    def _first_pass(self, dit, ws: WorldState, actions_PkA, z, new_map=None):
         """The fused pass of a step: commit latent frame i - 1 (``ws.latent_BP1hwC`` at t = 0) and the
         first denoising pass of frame i from its initial noise ``z``, as one pass of two frames
         (``WorldDiT.decode``, ``commit=1``).
 
+        ``new_map``: frame i's partner map (``_tracked``; the partner map only).
+
         Returns (v of that pass, the cache with frame i - 1)."""
         i = ws.frame_index_B
         x = jnp.concatenate([ws.latent_BP1hwC, z], axis=1)  # (P, 2, h, w, C): [committed i - 1 (x0) ; noisy i]
-        new_map = self._tracked(ws, actions_PkA)[0]
         cond = jnp.concatenate([self._with_map(self._cond_at(ws, i - 1), ws.partner_BPhw),
                                 self._with_map(self._cond_at(ws, i), new_map)], axis=1)
         actions = jnp.concatenate([ws.actions_BPWA, actions_PkA.astype(jnp.float32)], axis=1)  # windows i-1, i
@@ -354,18 +355,19 @@ class Programs:
                                  commit=1, layers=dit[1], still_memory=self.cfg.sampler.still_memory)
         return from_stream(self.cfg, v[:, :, 1:])[0], cache
 
-    def _denoise_world(self, params, ws: WorldState, actions_PkA, noise):
+    def _denoise_world(self, params, ws: WorldState, actions_PkA, noise, tracked):
         """Latent frame i of one world and the DiT cache with frame i - 1 committed; ``noise`` from
-        ``_step_noise``."""
+        ``_step_noise``, ``tracked`` from ``_tracked``."""
         dit = self._modules(params)[:2]
         z, k_renoise, _ = noise
-        v, cache = self._first_pass(dit, ws, actions_PkA, z)
-        cond = self._with_map(self._cond_at(ws, ws.frame_index_B), self._tracked(ws, actions_PkA)[0])
+        v, cache = self._first_pass(dit, ws, actions_PkA, z, tracked[0])
+        cond = self._with_map(self._cond_at(ws, ws.frame_index_B), tracked[0])
         parts = (cond, ws.context_kv, self._window(ws, actions_PkA), cache)
         return self._sample(dit, parts, z, k_renoise, ws.frame_index_B, first_v=v), cache
 
     def _first_pass_world(self, params, ws: WorldState, actions_PkA):
-        return self._first_pass(self._modules(params)[:2], ws, actions_PkA, self._step_noise(ws, actions_PkA)[0])
+        return self._first_pass(self._modules(params)[:2], ws, actions_PkA, self._step_noise(ws, actions_PkA)[0],
+                                self._tracked(ws, actions_PkA)[0])
 
     def _decode_world(self, params, ws: WorldState, x0_P1hwC):
         """(frames (P, k, H, W, 3) uint8, the VAE cache)."""
@@ -373,15 +375,15 @@ class Programs:
         video, vae_cache = vae.decode_step(x0_P1hwC, ws.vae_cache)  # (P, k, H, W, 3) in [-1, 1]
         return frames_to_uint8(video), vae_cache
 
-    def _advance(self, ws: WorldState, actions_PkA, x0_P1hwC, dit_cache, vae_cache, carried) -> WorldState:
-        """The bookkeeping after a step: next key, frame index, action buffer, caches, latent, and with warped
-        noise the draws the step sampled with (``carried``, from ``_step_noise``)."""
+    def _advance(self, ws: WorldState, actions_PkA, x0_P1hwC, dit_cache, vae_cache, carried, tracked) -> WorldState:
+        """The bookkeeping after a step: next key, frame index, action buffer, caches, latent, with warped noise
+        the draws the step sampled with (``carried``, from ``_step_noise``) and with the partner map the new
+        frame's map and tracker state (``tracked``, from ``_tracked``)."""
         next_key, _ = jax.random.split(ws.key_B)
         if carried is not None:
             ws = ws.replace(noise_BPShwC=carried[0], noise_shift_BP2=carried[1])
         if self.partner:
-            new_map, track = self._tracked(ws, actions_PkA)
-            ws = ws.replace(track_BP7=track, partner_BPhw=new_map)
+            ws = ws.replace(partner_BPhw=tracked[0], track_BP7=tracked[1])
         return ws.replace(key_B=next_key, frame_index_B=ws.frame_index_B + 1,
                           actions_BPWA=self._window(ws, actions_PkA), dit_cache=dit_cache, vae_cache=vae_cache,
                           latent_BP1hwC=x0_P1hwC)
@@ -440,16 +442,18 @@ class Programs:
 
     def step(self, params, state: WorldState, actions_BPkA):
         noise = jax.vmap(self._step_noise)(state, actions_BPkA)  # drawn once: the sampler and the next state
-        x0, dit_cache = self._denoise(params, state, actions_BPkA, noise)
+        tracked = jax.vmap(self._tracked)(state, actions_BPkA)  # tracked once: the passes and the next state
+        x0, dit_cache = self._denoise(params, state, actions_BPkA, noise, tracked)
         frames, vae_cache = self.decode(params, state, x0)
-        return frames, jax.vmap(self._advance)(state, actions_BPkA, x0, dit_cache, vae_cache, noise[2])
+        return frames, jax.vmap(self._advance)(state, actions_BPkA, x0, dit_cache, vae_cache, noise[2], tracked)
 
-    def _denoise(self, params, state: WorldState, actions_BPkA, noise):
-        return jax.vmap(self._denoise_world, in_axes=(None, 0, 0, 0))(params, state, actions_BPkA, noise)
+    def _denoise(self, params, state: WorldState, actions_BPkA, noise, tracked):
+        return jax.vmap(self._denoise_world, in_axes=(None, 0, 0, 0, 0))(params, state, actions_BPkA, noise, tracked)
 
     def denoise(self, params, state: WorldState, actions_BPkA):
         """Every DiT pass of a step: (x0 (B, P, 1, h, w, C), the caches with the previous frame committed)."""
-        return self._denoise(params, state, actions_BPkA, jax.vmap(self._step_noise)(state, actions_BPkA))
+        return self._denoise(params, state, actions_BPkA, jax.vmap(self._step_noise)(state, actions_BPkA),
+                             jax.vmap(self._tracked)(state, actions_BPkA))
 
     def first_pass(self, params, state: WorldState, actions_BPkA):
         """The fused commit + first denoising pass alone (part of ``denoise``; timed by the benchmark)."""
