@@ -9,7 +9,8 @@ The world model starts every world from one frame per player. Where those frames
   frame sizes are resized on load (every engine frame shows the 16:9 game window, so resizing keeps the
   field of view; sizes above 64 are upsampled and blurry: use ``"engine"`` there). The scene's
   ``(world, seed)`` is stored too, so ``StartScenes.engine_state(i)`` rebuilds the exact engine state and
-  the real env can start from the same scene.
+  the real env can start from the same scene, and so are the players' poses (what a partner-map model
+  dead reckons from, docs/model.md §8.6).
 * ``"engine"``: a fresh engine world rendered at the model's resolution on every reset (slower: world
   generation and a render per reset, and the renderer compiles once per resolution).
 * a list of ``EngineState``: rendered at the model's resolution, sampled by the reset seed.
@@ -50,21 +51,28 @@ def scene_key(num_players: int, resolution: int) -> str:
     return f"p{num_players}_r{resolution}"
 
 
+def poses_key(num_players: int) -> str:
+    return f"poses_p{num_players}"
+
+
 def scene_plan(scenes: int) -> list[tuple[str, int]]:
     """The (world kind, reset seed) of each scene of a set: alternating flat and normal worlds."""
     return [(("flat", "normal")[i % 2], SCENE_SEED_BASE + i) for i in range(scenes)]
 
 
-def render_scene_set(num_players: int, resolution: int, plan: Sequence[tuple[str, int]]) -> np.ndarray:
-    """(S, P, R, R, 3) uint8: the first views of ``RealParallelEnv`` resets, one per planned scene."""
+def render_scene_set(num_players: int, resolution: int,
+                     plan: Sequence[tuple[str, int]]) -> tuple[np.ndarray, np.ndarray]:
+    """The first views of ``RealParallelEnv`` resets, one per planned scene: (S, P, R, R, 3) uint8 frames and the
+    players' (S, P, 5) float32 poses (``EngineState.poses``)."""
     from solaris_env.real_env import RealParallelEnv
 
-    out = []
+    frames, poses = [], []
     for kind, seed in plan:
         env = RealParallelEnv(num_players=num_players, world=kind, resolution=resolution)
         obs, _ = env.reset(seed=seed)
-        out.append(np.stack([obs[a] for a in env.possible_agents]))
-    return np.stack(out)
+        frames.append(np.stack([obs[a] for a in env.possible_agents]))
+        poses.append(env.engine_state().poses)
+    return np.stack(frames), np.stack(poses)
 
 
 def build(path: Path = SCENES_PATH, scenes: int = SCENES_PER_SET,
@@ -77,13 +85,14 @@ def build(path: Path = SCENES_PATH, scenes: int = SCENES_PER_SET,
         "player_counts": np.array(player_counts, np.int64), "resolutions": np.array(resolutions, np.int64)}
     for p in player_counts:
         for r in resolutions:
-            arrays[scene_key(p, r)] = render_scene_set(p, r, plan)
+            arrays[scene_key(p, r)], arrays[poses_key(p)] = render_scene_set(p, r, plan)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".npz.tmp")
     try:
         with os.fdopen(fd, "wb") as f:
             np.savez_compressed(f, **arrays)
+        os.chmod(tmp, 0o644)  # mkstemp's 0600 would keep the shipped file from other users
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
@@ -120,11 +129,13 @@ class StartScenes:
         frames_SPHW3: uint8 (S, P, H, W, 3) first views.
         worlds: per scene, the world kind (``"flat"`` or ``"normal"``).
         seeds: per scene, the ``RealParallelEnv.reset`` seed that made it.
+        poses_SP5: float32 (S, P, 5) the players' poses in each scene (``EngineState.poses``).
     """
 
     frames_SPHW3: np.ndarray
     worlds: tuple[str, ...]
     seeds: tuple[int, ...]
+    poses_SP5: np.ndarray
 
     def __len__(self) -> int:
         return len(self.frames_SPHW3)
@@ -150,10 +161,14 @@ def load_start_scenes(num_players: int, height: int, width: int, path: Path = SC
     exact = [r for r in sizes if (r, r) == (height, width)]
     larger = [r for r in sizes if r >= max(height, width)]
     source = exact[0] if exact else (larger[0] if larger else sizes[-1])
+    if poses_key(num_players) not in bundle:
+        raise ValueError(f"the bundled start scenes {path} carry no poses (an older bundle); rebuild them with "
+                         "`python -m solaris_env.start_scenes`")
     frames = bundle[scene_key(num_players, source)]
     s, p = frames.shape[:2]
     resized = resize_frames(frames.reshape(s * p, source, source, 3), height, width).reshape(s, p, height, width, 3)
-    return StartScenes(resized, tuple(str(w) for w in bundle["worlds"]), tuple(int(x) for x in bundle["seeds"]))
+    return StartScenes(resized, tuple(str(w) for w in bundle["worlds"]), tuple(int(x) for x in bundle["seeds"]),
+                       bundle[poses_key(num_players)])
 
 
 # ---------------------------------------------------------------------------------------------
@@ -163,8 +178,8 @@ def load_start_scenes(num_players: int, height: int, width: int, path: Path = SC
 
 # what a dream env raises when a partner-map model (docs/model.md §8.6) is started without the players' poses
 POSES_NEEDED = ("this model reads the partner map (dit.partner_map), which needs the players' poses: start it from "
-                "an engine game (start_states 'engine' or a list of EngineState, or reset options={'engine_state': "
-                "...}), not from frames alone")
+                "the bundled scenes or an engine game (start_states 'bundled', 'engine' or a list of EngineState, or "
+                "reset options={'engine_state': ...}), not from given frames alone")
 
 
 class StartFrames:
@@ -178,9 +193,10 @@ class StartFrames:
 
     def __init__(self, start_states: Any, agents: Sequence[str], height: int, width: int):
         self.agents, self.height, self.width = list(agents), height, width
+        self._scene_poses: np.ndarray | None = None  # (S, P, 5) the bundled scenes' poses
         self.kind, self._scenes, self._states, self._engine_env = self._parse(start_states)
-        # the players' poses (P, 5) of the last start that ``sample`` / ``from_options`` gave, where an engine game
-        # made it (``EngineState.poses``); None for frames alone (bundled scenes, given frames)
+        # the players' poses (P, 5) of the last start that ``sample`` / ``from_options`` gave (``EngineState.poses``;
+        # the bundled scenes store theirs); None for given frames
         self.poses: np.ndarray | None = None
 
     def _parse(self, start_states):
@@ -190,6 +206,7 @@ class StartFrames:
                                  f"uint8 array (S, P, H, W, 3); got {start_states!r}")
             if start_states == "bundled":
                 scenes = load_start_scenes(len(self.agents), self.height, self.width)
+                self._scene_poses = scenes.poses_SP5
                 return "bundled", scenes.frames_SPHW3, None, None
             return "engine", None, None, None
         if isinstance(start_states, np.ndarray):
@@ -212,6 +229,8 @@ class StartFrames:
         self.poses = None
         if self._scenes is not None:
             i = int(rng.integers(len(self._scenes)))
+            if self.kind == "bundled":
+                self.poses = self._scene_poses[i]
             return self._scenes[i], {"start": self.kind, "scene": i}
         if self._states is not None:
             i = int(rng.integers(len(self._states)))

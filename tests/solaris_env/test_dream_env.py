@@ -219,6 +219,7 @@ def test_bundled_scene_frames_are_what_the_engine_renders_from_their_state():
         state = scenes.engine_state(i)
         frames, _ = render_game_views(state.game(), 32, 32)
         assert np.array_equal(frames, scenes.frames_SPHW3[i]), f"scene {i}: rebuild the bundle (engine changed?)"
+        np.testing.assert_array_equal(scenes.poses_SP5[i], state.poses)  # what a partner-map model starts from
 
 
 def test_start_scenes_resize_on_load_for_other_sizes():

@@ -220,11 +220,12 @@ def test_the_map_reaches_the_dit(tmp_path):
 
 
 def test_the_dream_envs_pass_the_start_poses(tmp_path):
-    """The dream env and the vector env start a partner-map model from an engine game's poses, and refuse a start
-    from frames alone with a message that says why."""
+    """The dream env and the vector env start a partner-map model from an engine game's poses or a bundled scene's,
+    and refuse a start from given frames alone with a message that says why."""
     from solaris_env.dream_env import DreamParallelEnv
     from solaris_env.real_env import RealParallelEnv
     from solaris_env.spaces import noop
+    from solaris_env.start_scenes import load_start_scenes
     from solaris_env.vector_env import DreamVectorEnv
 
     _, pm = _partner_model(tmp_path)
@@ -247,3 +248,12 @@ def test_the_dream_envs_pass_the_start_poses(tmp_path):
     vec.reset(seed=1)  # sampled from the engine states
     with pytest.raises(ValueError, match="needs the players' poses"):
         DreamVectorEnv(2, model=pm, start_states=np.zeros((1, 2, h, w, 3), np.uint8)).reset(seed=0)
+    scenes = load_start_scenes(2, h, w)
+    bundled = DreamParallelEnv(model=pm)  # the default start: the bundled scenes, which carry their poses
+    _, infos = bundled.reset(seed=3)
+    np.testing.assert_allclose(bundled._state.track_BP7[0, :, :5], scenes.poses_SP5[infos["Alpha"]["scene"]],
+                               atol=1e-5)
+    vec = DreamVectorEnv(2, model=pm)
+    _, infos = vec.reset(seed=4)
+    np.testing.assert_allclose(vec._state.track_BP7[:, :, :5],
+                               scenes.poses_SP5[[s["scene"] for s in infos["start"]]], atol=1e-5)
