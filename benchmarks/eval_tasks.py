@@ -110,6 +110,17 @@ class Segment:
         per_bot = [camera_linear(mineflayer_records_to_vectors(self.episode.records[b])) for b in self.players]
         return np.stack([a[self.start:self.start + self.num_frames] for a in per_bot], axis=1).astype(np.float32)
 
+    def start_poses(self) -> np.ndarray:
+        """(P, 5) float32 every player's [x, y, z, yaw, pitch] at GT frame s + 1 (record s + 1, as in training):
+        where a partner-map model (``DiTConfig.partner_map``) starts dead reckoning."""
+        from training.duet import record_poses
+
+        poses = [record_poses(self.episode.records[b][self.start + 1:self.start + 2]) for b in self.players]
+        if any(p is None for p in poses):
+            raise ValueError(f"{self.episode.key}: its records carry no pose (x, y, z, yaw, pitch), which a "
+                             "partner-map model needs; record the eval set again with solaris-engine collect --eval")
+        return np.concatenate(poses)
+
     def ground_truth(self) -> np.ndarray:
         """GT frames s + 1 .. s + T of every player, uint8 (T, P, H, W, 3)."""
         videos = [read_video(self.episode.video_path(b)) for b in self.players]
@@ -222,7 +233,8 @@ def generate(model, segments: Sequence[Segment], seed: int, worlds: int,
         padded = batch + [batch[-1]] * (worlds - len(batch))
         obs_BTPHW3 = np.stack([seg.ground_truth() for seg in padded])
         act_BTP25 = np.stack([seg.actions() for seg in padded])
-        gen_BTPHW3 = rollout(model, obs_BTPHW3, act_BTP25, seed * 1_000_003 + i)
+        poses_BP5 = np.stack([seg.start_poses() for seg in padded]) if model.config.dit.partner_map else None
+        gen_BTPHW3 = rollout(model, obs_BTPHW3, act_BTP25, seed * 1_000_003 + i, poses_BP5=poses_BP5)
         for b, seg in enumerate(batch):
             kept.update(query_frames(seg, gen_BTPHW3[b]))
             gen_NHW3 = gen_BTPHW3[b].reshape(-1, *gen_BTPHW3.shape[-3:])  # all T frames of both players

@@ -145,10 +145,10 @@ def _validated_recording(video: Path, actions: Path) -> BotRecording:
     times_T = _render_times(records, actions)
     if n_frames != len(records):
         raise EpisodeError(COUNT_MISMATCH, f"{video.name}: {n_frames} frames for {len(records)} records")
-    return BotRecording(video, actions, times_T, act_T25, _poses(records))
+    return BotRecording(video, actions, times_T, act_T25, record_poses(records))
 
 
-def _poses(records: list) -> np.ndarray | None:
+def record_poses(records: list) -> np.ndarray | None:
     """(T, 5) float32 [x, y, z, yaw, pitch] of every record (feet in blocks; Mineflayer radians), or None when the
     records carry no pose (the partner map, ``DiTConfig.partner_map``, then cannot be trained on them)."""
     try:

@@ -22,7 +22,7 @@ logger = logging.getLogger(__name__)
 
 
 def rollout(model: WorldModel, obs_BTPHW3: np.ndarray, act_BTP25: np.ndarray, seed: int = 0,
-            teacher_forced: bool = False) -> np.ndarray:
+            teacher_forced: bool = False, poses_BP5: np.ndarray | None = None) -> np.ndarray:
     """Autoregressive rollout from ``obs[:, 0]`` driven by the segment's actions.
 
     Args:
@@ -33,6 +33,8 @@ def rollout(model: WorldModel, obs_BTPHW3: np.ndarray, act_BTP25: np.ndarray, se
             as the frame the next step commits to its KV cache, instead of its own: every step is then a
             one-step prediction from the true past (the VAE decoder still streams the generated latents).
             A diagnostic: free rollout vs teacher-forced separates the drift from the per-step error.
+        poses_BP5: the players' poses at frame 0 (x, y, z, yaw, pitch), which a partner-map model needs
+            (``DiTConfig.partner_map``, docs/model.md §8.6); None for other models.
     Returns:
         generated uint8 (B, T, P, H, W, 3); frame 0 is the model's decode of latent frame 0.
     """
@@ -41,7 +43,8 @@ def rollout(model: WorldModel, obs_BTPHW3: np.ndarray, act_BTP25: np.ndarray, se
     if (t - 1) % k:
         raise ValueError(f"segment length T={t} must be 1 + k*n for k={k}")
     truth = ground_truth_latents(model, obs_BTPHW3) if teacher_forced else None
-    state = model.init(jnp.asarray(obs_BTPHW3[:, 0]), seed, first_actions=jnp.asarray(act_BTP25[:, 0]))
+    state = model.init(jnp.asarray(obs_BTPHW3[:, 0]), seed, first_actions=jnp.asarray(act_BTP25[:, 0]),
+                       poses=None if poses_BP5 is None else jnp.asarray(poses_BP5, jnp.float32))
     out = [np.asarray(state.frame0_BPHW3)[:, None]]
     for i in range(1, 1 + (t - 1) // k):
         chunk = act_BTP25[:, k * (i - 1) + 1: k * i + 1]  # (B, k, P, 25)
@@ -179,6 +182,10 @@ def write_stage_sample(stem: Path, cfg: WorldModelConfig, dit, vae, encoder, dat
     from training.vpt import VPTDataset
 
     stem = Path(stem)
+    if cfg.dit.partner_map:
+        logger.warning("sample %s skipped: a partner-map model starts from the players' poses, which the sample "
+                       "batches do not carry (benchmarks.eval_tasks and benchmarks.dream_fidelity pass them)", stem)
+        return None
     k = cfg.frames_per_step
     num_frames = num_frames or 1 + k * 8
     size = (cfg.frame_height, cfg.frame_width)

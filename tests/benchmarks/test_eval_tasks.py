@@ -181,3 +181,30 @@ def test_fid_features_add_a_fid_next_to_the_in_domain_fd(data_dir, model, judge,
     assert table[1] == "|---|" + "---:|" * (3 * num_tasks)
     assert table[3] == "| concat | " + " | ".join([et.NO_CHECKPOINT, "–", "–"] * num_tasks) + " |"
     assert all(line.count("|") == 2 + 3 * num_tasks for line in table)
+
+
+def test_a_partner_map_model_starts_from_the_recorded_poses(model, segments, tmp_path):
+    """A partner-map model (docs/model.md §8.6) gets every player's pose at the start frame (record s + 1); with the
+    map's row at zero it makes the frames of the model it was made from."""
+    from solaris_env.world_model import checkpoint
+    from solaris_env.world_model.components import COMPONENTS
+    from solaris_env.world_model.world_model import WorldModel
+    from training import cli
+    from training.samples import rollout
+
+    for seg in segments:
+        poses = seg.start_poses()
+        for p, bot in enumerate(seg.players):
+            r = seg.episode.records[bot][seg.start + 1]
+            np.testing.assert_allclose(poses[p], [r[k] for k in ("x", "y", "z", "yaw", "pitch")], rtol=1e-6)
+    checkpoint.save(tmp_path / "base", model.config, dict(zip(COMPONENTS, model.params)))
+    assert cli.main(["action-conditioning", str(tmp_path / "base"), "--partner-map", "10",
+                     "--out", str(tmp_path / "pm")]) == 0
+    pm = WorldModel.load(tmp_path / "pm")
+    seg = segments[:1]
+    with pytest.raises(ValueError, match="poses"):
+        rollout(pm, seg[0].ground_truth()[None, :5], seg[0].actions()[None, :5])
+    base_frames, pm_frames = et.generate(model, seg, seed=0, worlds=1), et.generate(pm, seg, seed=0, worlds=1)
+    assert set(base_frames.frames) == set(pm_frames.frames)
+    for key, frame in base_frames.frames.items():
+        np.testing.assert_array_equal(pm_frames.frames[key], frame)
