@@ -172,7 +172,8 @@ def write_stage_sample(stem: Path, cfg: WorldModelConfig, dit, vae, encoder, dat
                        seed: int = 0, num_frames: int | None = None) -> dict:
     """Generate one held-out segment (duet/test, or vpt/test for one player) with the stage's model and
     write ``<stem>.mp4`` (generated over ground truth) and ``<stem>.json`` (PSNR); returns the summary, or
-    None (a warning, nothing written) when no held-out episode holds ``num_frames`` frames."""
+    None (a warning, nothing written) when no held-out episode holds ``num_frames`` frames or the model reads the
+    partner map (its rollouts start from poses, which these batches do not carry)."""
     from training.duet import DuetDataset
     from training.samplers import (
         MultiplayerSegmentSampler,
