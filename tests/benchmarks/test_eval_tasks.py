@@ -163,7 +163,8 @@ def test_fid_features_add_a_fid_next_to_the_in_domain_fd(data_dir, model, judge,
     frame): every row's and trial's FID equals its in-domain FD, and the table gets a FID column per task."""
     import training.samples
 
-    monkeypatch.setattr(training.samples, "rollout", lambda model, obs, act, seed: 255 - obs)  # fast "videos"
+    fast_videos = lambda model, obs, act, seed, poses_BP5=None: 255 - obs  # noqa: E731
+    monkeypatch.setattr(training.samples, "rollout", fast_videos)
     res = et.run_benchmark(data_dir, {"default": model, "concat": None}, seeds=(0,), worlds=2, judge=judge,
                            features=features, fid_features=features)
     rows = res["rows"]
