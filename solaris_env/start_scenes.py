@@ -193,8 +193,8 @@ class StartFrames:
 
     def __init__(self, start_states: Any, agents: Sequence[str], height: int, width: int):
         self.agents, self.height, self.width = list(agents), height, width
-        self._scene_poses: np.ndarray | None = None  # (S, P, 5) the bundled scenes' poses
-        self.kind, self._scenes, self._states, self._engine_env = self._parse(start_states)
+        # _scene_poses: (S, P, 5) the bundled scenes' poses (None for given frames)
+        self.kind, self._scenes, self._scene_poses, self._states, self._engine_env = self._parse(start_states)
         # the players' poses (P, 5) of the last start that ``sample`` / ``from_options`` gave (``EngineState.poses``;
         # the bundled scenes store theirs); None for given frames
         self.poses: np.ndarray | None = None
@@ -206,21 +206,20 @@ class StartFrames:
                                  f"uint8 array (S, P, H, W, 3); got {start_states!r}")
             if start_states == "bundled":
                 scenes = load_start_scenes(len(self.agents), self.height, self.width)
-                self._scene_poses = scenes.poses_SP5
-                return "bundled", scenes.frames_SPHW3, None, None
-            return "engine", None, None, None
+                return "bundled", scenes.frames_SPHW3, scenes.poses_SP5, None, None
+            return "engine", None, None, None, None
         if isinstance(start_states, np.ndarray):
             shape = (len(self.agents), self.height, self.width, 3)
             if start_states.dtype != np.uint8 or start_states.ndim != 5 or start_states.shape[1:] != shape \
                     or len(start_states) == 0:
                 raise ValueError(f"start_states array must be uint8 (S, {', '.join(map(str, shape))}) with S >= 1; "
                                  f"got {start_states.dtype} {start_states.shape}")
-            return "frames", start_states, None, None
+            return "frames", start_states, None, None, None
         if isinstance(start_states, (list, tuple)) and start_states:
             from solaris_env.real_env import check_engine_state
 
             states = [check_engine_state(s, self.agents) for s in start_states]
-            return "engine_states", None, states, None
+            return "engine_states", None, None, states, None
         raise TypeError(f"start_states must be 'bundled', 'engine', a non-empty list of EngineState or a uint8 "
                         f"array; got {type(start_states).__name__}")
 
@@ -229,8 +228,7 @@ class StartFrames:
         self.poses = None
         if self._scenes is not None:
             i = int(rng.integers(len(self._scenes)))
-            if self.kind == "bundled":
-                self.poses = self._scene_poses[i]
+            self.poses = None if self._scene_poses is None else self._scene_poses[i]
             return self._scenes[i], {"start": self.kind, "scene": i}
         if self._states is not None:
             i = int(rng.integers(len(self._states)))
