@@ -1175,6 +1175,86 @@ def tables(scored: Sequence[Scored], programs: Sequence[Program]) -> dict:
     return {"programs": by_program, "surfaces": by_surface, "partner_at_start": by_start, "overall": overall}
 
 
+# ---------------------------------------------------------------------------------------------
+# Uncertainty: a paired bootstrap over rollouts
+# ---------------------------------------------------------------------------------------------
+
+# The headline metrics whose uncertainty is reported, each a ratio of sums over rollouts (so a resample of the
+# rollouts recomputes them exactly as ``summarize`` does): overall direction agreement and view-change ratio, the
+# late sharpness of random play and the bot episode (steps ``LATE_STEPS``), and the partner's balanced position
+# agreement. Draws resample the rollouts of each program with replacement, the same draws for every model, so
+# the difference between two models is paired: it carries the sampling noise of the dream, not of the starts.
+HEADLINE = ("direction_agreement", "view_change_ratio", "late_sharpness_ratio", "position_balanced_dream")
+LATE_PROGRAMS, LATE_STEPS = ("random", "bot"), (33, 256)
+POSITION_CLASSES = ("left", "center", "right", "no player")
+BOOTSTRAP_DRAWS, BOOTSTRAP_LEVEL, BOOTSTRAP_SEED = 2000, 0.9, 0
+
+
+def rollout_sums(s: Scored) -> np.ndarray:
+    """The sums one rollout adds to the ``HEADLINE`` metrics: (dream, engine) direction scores over the valid
+    steps, (dream, engine) view change, (dream, engine) sharpness over the late steps of ``LATE_PROGRAMS``, then
+    per ``POSITION_CLASSES`` truth class the dream judge's (matches, counted) inside the partner scope."""
+    valid = s.valid.astype(bool)
+    late = window_mask(s.steps, LATE_STEPS) if s.rollout.program in LATE_PROGRAMS else np.zeros(len(s.steps), bool)
+    out = [np.sum(np.asarray(s.dir_d)[valid]), np.sum(np.asarray(s.dir_e)[valid]), np.sum(s.change_d),
+           np.sum(s.change_e), np.sum(s.sharp_d[late]), np.sum(s.sharp_e[late])]
+    per_class = class_agreement(s.pos_d, s.pos_truth, s.partner_scope) if s.pos_d and s.pos_d[0] is not None else {}
+    for c in POSITION_CLASSES:
+        out += per_class.get(c, [0, 0])
+    return np.asarray(out, np.float64)
+
+
+def headline(sums_NK: np.ndarray) -> np.ndarray:
+    """(N, len(HEADLINE)) metrics from (N, K) summed ``rollout_sums``; NaN where a denominator is 0."""
+    sums_NK = np.atleast_2d(sums_NK)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratios = [np.where(sums_NK[:, i + 1] != 0, sums_NK[:, i] / sums_NK[:, i + 1], np.nan) for i in (0, 2, 4)]
+    hits, counted = sums_NK[:, 6::2], sums_NK[:, 7::2]
+    classes = (counted > 0).sum(1)  # the truth classes present: ``balanced_agreement`` averages over them
+    rates = np.where(counted > 0, hits / np.maximum(counted, 1), 0.0).sum(1)
+    balanced = np.where(classes > 0, rates / np.maximum(classes, 1), np.nan)
+    return np.stack(ratios + [balanced], axis=1)
+
+
+def bootstrap(sums_by_model: dict[str, np.ndarray], strata: Sequence[str], draws: int = BOOTSTRAP_DRAWS,
+              level: float = BOOTSTRAP_LEVEL, seed: int = BOOTSTRAP_SEED) -> dict:
+    """Percentile intervals of the ``HEADLINE`` metrics per model and of each model's difference from the first,
+    from ``draws`` resamples of the rollouts (with replacement inside each stratum, e.g. each program; the same
+    resamples for every model). ``sums_by_model``: label -> (R, K) ``rollout_sums`` in the same rollout order.
+
+    Returns {"models": {label: {metric: {"value", "interval"}}}, "differences": {label: {metric: {"value",
+    "interval", "share_above_zero"}}} (vs the first model; absent for one model)}."""
+    labels = list(sums_by_model)
+    strata = np.asarray(strata)
+    n = len(strata)
+    if any(v.shape[0] != n for v in sums_by_model.values()):
+        raise ValueError(f"every model needs one row of sums per rollout ({n})")
+    rng = np.random.default_rng(seed)
+    idx = np.empty((draws, n), np.int64)
+    for name in dict.fromkeys(strata.tolist()):  # resample inside each stratum, in a fixed order
+        members = np.flatnonzero(strata == name)
+        idx[:, members] = members[rng.integers(0, len(members), (draws, len(members)))]
+    lo_q, hi_q = 100 * (1 - level) / 2, 100 * (1 + level) / 2
+
+    def interval(x):
+        x = x[np.isfinite(x)]
+        return [_r(np.percentile(x, lo_q)), _r(np.percentile(x, hi_q))] if len(x) else [None, None]
+
+    points = {k: headline(v.sum(0))[0] for k, v in sums_by_model.items()}
+    samples = {k: headline(v[idx].sum(1)) for k, v in sums_by_model.items()}  # (draws, metrics)
+    out = {"models": {k: {m: {"value": _r(points[k][j]), "interval": interval(samples[k][:, j])}
+                          for j, m in enumerate(HEADLINE)} for k in labels}, "differences": {}}
+    for k in labels[1:]:
+        row = {}
+        for j, m in enumerate(HEADLINE):
+            d = samples[k][:, j] - samples[labels[0]][:, j]
+            d = d[np.isfinite(d)]
+            row[m] = {"value": _r(points[k][j] - points[labels[0]][j]), "interval": interval(d),
+                      "share_above_zero": _r(np.mean(d > 0)) if len(d) else None}
+        out["differences"][k] = row
+    return out
+
+
 def estimator_validation(caches: dict, rollouts: Sequence[Rollout]) -> dict:
     """The direction estimator on engine frames only: engine against itself, a frozen copy (every frame = the
     first), the time-reversed sequence, the mirrored one (turn programs) and, on the turn programs, the
@@ -1392,7 +1472,7 @@ def run(model_specs: Sequence[str], program_names: Sequence[str], setup: Setup, 
     validation = estimator_validation(caches, rollouts)
     log(f"engine motion fitted and judged ({timing['engine_scoring_s']} s); estimator: {validation.get('all')}")
 
-    results, shown = {}, {id(r): {} for r in showcase(rollouts)}
+    results, shown, sums = {}, {id(r): {} for r in showcase(rollouts)}, {}
     for label, model in models.items():
         t0 = time.perf_counter()
         if isinstance(model, WarpFormula):
@@ -1407,6 +1487,7 @@ def run(model_specs: Sequence[str], program_names: Sequence[str], setup: Setup, 
         t0 = time.perf_counter()
         scored = [score(r, caches[id(r)], d, judge, features, w) for r, d, w in zip(rollouts, dreams, withins)]
         results[label] = tables(scored, programs)
+        sums[label] = np.stack([rollout_sums(x) for x in scored])
         timing[f"dream_rollouts_s[{label}]"] = round(dream_s, 1)
         timing[f"dream_scoring_s[{label}]"] = round(time.perf_counter() - t0, 1)
         log(f"dream {label}: {timing[f'dream_rollouts_s[{label}]']} s rollouts, "
@@ -1461,6 +1542,11 @@ def run(model_specs: Sequence[str], program_names: Sequence[str], setup: Setup, 
         },
         "estimator_validation": validation,
         "results": results,
+        "uncertainty": {"method": f"paired bootstrap over rollouts, resampled inside each program; {BOOTSTRAP_DRAWS} "
+                                  f"draws, {int(100 * BOOTSTRAP_LEVEL)} % percentile intervals; differences are "
+                                  "each model minus the first on the same draws",
+                        "late_sharpness": f"steps {LATE_STEPS[0]}-{LATE_STEPS[1]} of {' and '.join(LATE_PROGRAMS)}",
+                        **bootstrap(sums, [r.program for r in rollouts])},
         "timing": timing,
     }
     pictures = {"rows": [(r, shown[id(r)]) for r in rollouts if id(r) in shown], "names": list(models),
@@ -1506,6 +1592,15 @@ def print_tables(result: dict) -> None:
                   f"{_fmt(a.get('position_agreement_dream'))} {_fmt(a.get('position_agreement_engine'))} "
                   f"{_fmt(a.get('frechet'), 1)} {a['steps']:6d}  {_fmt(a.get('visible_balanced_dream'))}  "
                   f"{_fmt(a.get('position_balanced_dream'))}")
+    u = result.get("uncertainty")
+    if u:
+        print(f"\nheadline metrics, {u['method']}:")
+        iv = lambda c: f"{_fmt(c['value'], 3, 6)} [{_fmt(c['interval'][0], 3, 6)}, {_fmt(c['interval'][1], 3, 6)}]"
+        print(f"{'model':40s} " + " ".join(f"{m:>24s}" for m in HEADLINE))
+        for name, row in u["models"].items():
+            print(f"{name[-40:]:40s} " + " ".join(f"{iv(row[m]):>24s}" for m in HEADLINE))
+        for name, row in u["differences"].items():
+            print(f"{('- first: ' + name)[-40:]:40s} " + " ".join(f"{iv(row[m]):>24s}" for m in HEADLINE))
     v = result["estimator_validation"]
     for key, row in v.items():
         print(f"direction estimator ({key}, engine frames): " + ", ".join(f"{k} {x}" for k, x in row.items()))

@@ -245,6 +245,72 @@ def test_balanced_partner_agreement_gives_a_constant_answer_one_over_the_classes
     assert df.balanced_agreement(df.class_agreement(["center"] * 8, positions, np.ones(8, bool))) == 0.25
 
 
+def _scored_rollout(program, dir_e, dir_d, valid, change_d, sharp_d, pos_truth, pos_d, kind="learner"):
+    """A Scored of len(dir_e) steps with the given direction scores, view changes (the engine's 4 per step),
+    sharpness (the engine's 10) and partner positions."""
+    n = len(dir_e)
+    rollout = df.Rollout(program, kind, 0, None, "grass", True, 0, [], np.zeros((n + 1, 2, 2, 3), np.uint8),
+                         np.zeros(n + 1), [None] * (n + 1), np.zeros((n + 1, 2)))
+    vis_truth = ["no" if t == "no player" else ("yes" if t else None) for t in pos_truth]
+    return df.Scored(rollout, np.full(n, 4.0), np.asarray(change_d, float), np.full(n, 10.0),
+                     np.asarray(sharp_d, float), np.zeros(n), np.zeros(n), np.asarray(dir_e, float),
+                     np.asarray(dir_d, float), np.asarray(valid, bool), np.zeros((n, 3)), np.zeros((n, 3)),
+                     vis_truth, list(pos_truth), [None] * n, list(pos_truth), [None] * n, list(pos_d), None, None)
+
+
+def _rollouts(rng, n=4, steps=40, quality=0.5):
+    """n random rollouts per program of forward, random and partner_toward; the dream's direction scores are
+    ``quality`` times the engine's plus noise, its positions right with probability ``quality``."""
+    out = []
+    for program in ("forward", "random", "partner_toward"):
+        for _ in range(n):
+            de = rng.uniform(0.3, 1.0, steps)
+            truth = list(rng.choice(["left", "center", "right", "no player"], steps))
+            pos_d = [t if rng.random() < quality else "center" for t in truth]
+            out.append(_scored_rollout(program, de, quality * de + rng.normal(0, 0.2, steps), rng.random(steps) < 0.7,
+                                       rng.uniform(0, 8, steps), rng.uniform(5, 12, steps), truth, pos_d,
+                                       "partner" if program == "partner_toward" else "learner"))
+    return out
+
+
+def test_headline_sums_reproduce_summarize():
+    """The bootstrap's ratio-of-sums metrics are the overall table's, and the late sharpness is that of random
+    play's steps 33 on."""
+    scored = _rollouts(np.random.default_rng(0))
+    point = df.headline(np.stack([df.rollout_sums(s) for s in scored]).sum(0))[0]
+    overall = df.summarize([(s, np.ones(len(s.steps), bool)) for s in scored])
+    assert point[0] == pytest.approx(overall["direction_agreement"], abs=5e-4)
+    assert point[1] == pytest.approx(overall["view_change_ratio"], abs=5e-4)
+    assert point[3] == pytest.approx(overall["position_balanced_dream"], abs=5e-4)
+    late = df.summarize([(s, df.window_mask(s.steps, df.LATE_STEPS)) for s in scored if s.rollout.program == "random"])
+    assert point[2] == pytest.approx(late["sharpness_ratio"], abs=5e-4)
+    assert np.isnan(df.headline(np.zeros(len(df.rollout_sums(scored[0]))))).all()  # nothing counted: no value
+
+
+def test_bootstrap_pairs_models_on_the_same_draws():
+    """A model against itself differs by exactly 0 on every draw; a better model's difference lies above 0 on
+    every draw; intervals hold the point value; a stratum of one rollout is always drawn as itself."""
+    rng = np.random.default_rng(1)
+    weak, strong = _rollouts(rng, quality=0.3), _rollouts(np.random.default_rng(1), quality=0.9)
+    sums = {"weak": np.stack([df.rollout_sums(s) for s in weak]),
+            "same": np.stack([df.rollout_sums(s) for s in weak]),
+            "strong": np.stack([df.rollout_sums(s) for s in strong])}
+    strata = [s.rollout.program for s in weak]
+    u = df.bootstrap(sums, strata, draws=300)
+    for m in df.HEADLINE:
+        assert u["differences"]["same"][m] == {"value": 0.0, "interval": [0.0, 0.0], "share_above_zero": 0.0}
+        lo, hi = u["models"]["weak"][m]["interval"]
+        assert lo <= u["models"]["weak"][m]["value"] <= hi and lo < hi
+    for m in ("direction_agreement", "position_balanced_dream"):
+        d = u["differences"]["strong"][m]
+        assert d["interval"][0] > 0 and d["share_above_zero"] == 1.0
+    one = {k: v[:1] for k, v in sums.items()}  # one rollout: every draw is that rollout
+    single = df.bootstrap(one, strata[:1], draws=50)["models"]["weak"]["direction_agreement"]
+    assert single["interval"][0] == single["interval"][1] == single["value"]
+    with pytest.raises(ValueError, match="one row of sums per rollout"):
+        df.bootstrap({"a": sums["weak"][:3]}, strata)
+
+
 # ---------------------------------------------------------------------------------------------
 # Programs and start states
 # ---------------------------------------------------------------------------------------------
@@ -506,4 +572,6 @@ def test_end_to_end_tiny_run_writes_json_png_mp4(tmp_path):
     v = result["estimator_validation"]["all"]
     assert v["valid_steps"] > 0 and v["agreement_self"] == 1.0 and v["agreement_frozen"] == 0.0
     assert v["agreement_reversed"] == -1.0
+    u = result["uncertainty"]["models"]["preset test (random init)"]
+    assert set(u) == set(df.HEADLINE) and u["view_change_ratio"]["value"] == res["overall"]["view_change_ratio"]
     assert math.isfinite(result["wall_s"]) and "machine" in result
