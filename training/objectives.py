@@ -54,8 +54,11 @@ def noisy_latents(x0_BPFhwC: jax.Array, noise_BPFhwC: jax.Array, t_BPF: jax.Arra
 
 
 def flow_matching_loss(dit_forward: DiTForward, x0: jax.Array, cond: jax.Array, context: jax.Array,
-                       mouse: jax.Array, keyboard: jax.Array, t: jax.Array, noise: jax.Array) -> jax.Array:
-    """Scalar f32 MSE between the predicted velocity and ``noise - x0``.
+                       mouse: jax.Array, keyboard: jax.Array, t: jax.Array, noise: jax.Array,
+                       weight: jax.Array | None = None) -> jax.Array:
+    """Scalar f32 MSE between the predicted velocity and ``noise - x0``; with ``weight`` (B, P, F, h, w) >= 0 a
+    weighted mean over the latent cells (sum(w * err) / sum(w), the channels averaged): a uniform weight gives
+    the plain loss.
 
     Args:
         dit_forward: a DiT entry point (bound method), e.g. ``dit.forward_causal``.
@@ -69,4 +72,10 @@ def flow_matching_loss(dit_forward: DiTForward, x0: jax.Array, cond: jax.Array, 
                          f"{x0.shape[:3]}")
     x_sigma = noisy_latents(x0, noise, t)
     v_pred = dit_forward(x_sigma, t.astype(jnp.float32), cond, context, mouse, keyboard)
-    return jnp.mean(jnp.square(v_pred.astype(jnp.float32) - flow_matching.velocity_target(x0, noise)))
+    err = jnp.square(v_pred.astype(jnp.float32) - flow_matching.velocity_target(x0, noise))
+    if weight is None:
+        return jnp.mean(err)
+    if weight.shape != x0.shape[:-1]:
+        raise ValueError(f"weight {weight.shape} must be x0's cells (B, P, F, h, w) {x0.shape[:-1]}")
+    weight = weight.astype(jnp.float32)
+    return jnp.sum(weight * jnp.mean(err, axis=-1)) / jnp.sum(weight)

@@ -167,6 +167,8 @@ class FlowStageConfig(StageConfig):
     remat: bool = _field(True)  # the backward pass recomputes each DiT layer (``step.make_train_step``)
     # the partner map only: the share of frames whose partner cells the camera warp's input loses (``step.drop_partner``)
     partner_dropout: float = _field(0.0, low=0, high=1)
+    # the partner map only: the loss weight of the cells it marks (``step.partner_cells``) against 1 elsewhere
+    partner_weight: float = _field(1.0, above=0)
 
 
 @dataclass(frozen=True, kw_only=True)

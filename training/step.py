@@ -155,12 +155,12 @@ def make_loss_fn(graphdef: nnx.GraphDef, entry_point_name: str, remat: bool = Fa
     if entry_point_name not in FLOW_MATCHING_ENTRY_POINTS:
         raise ValueError(f"entry_point_name must be one of {FLOW_MATCHING_ENTRY_POINTS}, got {entry_point_name!r}")
 
-    def loss_fn(params, rest, batch, t_BPF, noise, clean=None):
+    def loss_fn(params, rest, batch, t_BPF, noise, clean=None, weight=None):
         dit = nnx.merge(graphdef, params, rest)
         forward = functools.partial(getattr(dit, entry_point_name), remat=remat)
         if dit.cfg.dit.camera_warp_enabled:  # the warp reads the clean previous frame, as a rollout commits it
             forward = functools.partial(forward, clean=batch["x0"] if clean is None else clean)
-        return flow_matching_loss(forward, *(batch[k] for k in BATCH_KEYS), t_BPF, noise)
+        return flow_matching_loss(forward, *(batch[k] for k in BATCH_KEYS), t_BPF, noise, weight)
 
     return loss_fn
 
@@ -187,13 +187,19 @@ def make_test_loss(graphdef: nnx.GraphDef, entry_point_name: str, noise_type: st
     return lambda params, rest: jnp.mean(jnp.stack([jitted(params, rest, b, i) for i, b in enumerate(batches)]))
 
 
+def partner_cells(cond: jax.Array, mask_channels: int) -> jax.Array:
+    """(B, P, F, h, w) bool: the latent cells the partner map marks (``DiTConfig.partner_map``, the conditioning
+    channel after the mask), grown by one cell (the box is the body's, the decoder's reach is wider)."""
+    marked = cond[..., mask_channels] > 0
+    return jax.lax.reduce_window(marked.astype(jnp.float32), 0.0, jax.lax.max, (1, 1, 1, 3, 3), (1, 1, 1, 1, 1),
+                                 "SAME") > 0
+
+
 def drop_partner(x0: jax.Array, cond: jax.Array, mask_channels: int, key: jax.Array, share: float) -> jax.Array:
-    """The clean latents the camera warp reads (``clean``), in a ``share`` of the frames (B, P, F) with the cells
-    the partner map marks (``DiTConfig.partner_map``; grown by one cell) replaced by the frame's mean over its other
-    cells: the next frame must then draw the partner from the map, as a rollout must where its own frame lost it."""
-    marked = cond[..., mask_channels] > 0  # (B, P, F, h, w)
-    grown = jax.lax.reduce_window(marked.astype(jnp.float32), 0.0, jax.lax.max, (1, 1, 1, 3, 3), (1, 1, 1, 1, 1),
-                                  "SAME") > 0
+    """The clean latents the camera warp reads (``clean``), in a ``share`` of the frames (B, P, F) with the
+    ``partner_cells`` replaced by the frame's mean over its other cells: the next frame must then draw the partner
+    from the map, as a rollout must where its own frame lost it."""
+    grown = partner_cells(cond, mask_channels)
     chosen = jax.random.bernoulli(key, share, x0.shape[:3])[..., None, None]
     drop = (grown & chosen)[..., None]
     keep = (~grown)[..., None].astype(x0.dtype)
@@ -203,7 +209,7 @@ def drop_partner(x0: jax.Array, cond: jax.Array, mask_channels: int, key: jax.Ar
 
 def make_train_step(graphdef: nnx.GraphDef, entry_point_name: str, noise_type: str,
                     tx: optax.GradientTransformation, ema_decay: float = 0.999, remat: bool = False,
-                    partner_dropout: float = 0.0, mask_channels: int = 0) -> Callable:
+                    partner_dropout: float = 0.0, mask_channels: int = 0, partner_weight: float = 1.0) -> Callable:
     """-> jitted ``train_step(state, batch) -> (state, metrics)``; ``state`` is donated. ``remat``: the backward
     pass recomputes each DiT layer (``make_loss_fn``): the same update, in less memory; on our 2-core CPUs, whose
     train step waits on memory, also 1.3-1.4x the steps per second (docs/training.md, "Stage configs").
@@ -223,10 +229,12 @@ def make_train_step(graphdef: nnx.GraphDef, entry_point_name: str, noise_type: s
         x0 = batch["x0"]
         t_BPF = sample_timesteps(k_t, x0.shape[:3], noise_type)
         noise = jax.random.normal(k_noise, x0.shape, jnp.float32)
-        clean = None
+        clean = weight = None
         if partner_dropout:
             clean = drop_partner(x0, batch["cond"], mask_channels, jax.random.fold_in(k_t, 7), partner_dropout)
-        loss, grads = jax.value_and_grad(loss_fn)(state.params, state.rest, batch, t_BPF, noise, clean)
+        if partner_weight != 1.0:
+            weight = jnp.where(partner_cells(batch["cond"], mask_channels), partner_weight, 1.0)
+        loss, grads = jax.value_and_grad(loss_fn)(state.params, state.rest, batch, t_BPF, noise, clean, weight)
         return apply_gradients(state, loss, grads, tx, ema_decay)
 
     return jax.jit(train_step, donate_argnums=(0,))

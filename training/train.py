@@ -520,8 +520,11 @@ def train_flow(stage: str, out: str | Path, data_dir: str | Path, sc: FlowStageC
     if sc.partner_dropout and not cfg.dit.partner_map:
         raise ValueError(f"partner_dropout={sc.partner_dropout} drops the cells the partner map marks; the model has "
                          "no partner map (dit.partner_map)")
+    if sc.partner_weight != 1.0 and not cfg.dit.partner_map:
+        raise ValueError(f"partner_weight={sc.partner_weight} weights the cells the partner map marks; the model has "
+                         "no partner map (dit.partner_map)")
     train_step = make_train_step(graphdef, fs.entry_point, fs.noise_type, tx, ema_decay, sc.remat,
-                                 sc.partner_dropout, cfg.mask_channels)
+                                 sc.partner_dropout, cfg.mask_channels, sc.partner_weight)
     from training.latents import batch_spec, make_prepare_latents
 
     batch_size = local_batch_size(sc.batch_size)

@@ -284,3 +284,33 @@ def test_drop_partner_fills_the_marked_cells_of_the_chosen_frames():
     half = np.asarray(drop_partner(x0, cond, 4, jax.random.key(3), 0.5))
     changed = np.abs(half - np.asarray(x0)).sum(axis=(-3, -2, -1)) > 0  # (B, P, F)
     assert 0 < changed.sum() < changed.size
+
+
+def test_partner_weight_is_a_weighted_mean_over_the_marked_cells():
+    """``flow_matching_loss`` with a cell weight: a uniform weight gives the plain loss; a weight w on the
+    ``partner_cells`` (the map's marked cells grown by one) and 1 elsewhere gives (w * their error + the rest's)
+    / (w * their count + the rest's); a weight of the wrong shape is refused."""
+    from training.objectives import flow_matching_loss
+    from training.step import partner_cells
+
+    x0 = jax.random.normal(jax.random.key(0), (1, 2, 3, 6, 6, 4))
+    noise = jax.random.normal(jax.random.key(1), x0.shape)
+    cond = jnp.zeros((1, 2, 3, 6, 6, 5)).at[:, :, :, 2, 3, 4].set(0.5)
+    t = jnp.full((1, 2, 3), 500, jnp.int32)
+    forward = lambda x, *_: jnp.zeros_like(x)  # predicts v = 0: the error is (noise - x0)^2
+    err = np.asarray(jnp.mean(jnp.square(noise - x0), axis=-1))  # (B, P, F, h, w)
+    plain = float(flow_matching_loss(forward, x0, cond, None, None, None, t, noise))
+    assert plain == pytest.approx(err.mean(), rel=1e-5)
+    ones = jnp.ones(x0.shape[:-1])
+    assert float(flow_matching_loss(forward, x0, cond, None, None, None, t, noise, 3 * ones)) == \
+        pytest.approx(plain, rel=1e-5)
+    cells = np.asarray(partner_cells(cond, 4))
+    region = np.zeros((6, 6), bool)
+    region[1:4, 2:5] = True
+    assert (cells == region).all()
+    weight = jnp.where(cells, 5.0, 1.0)
+    expected = (5 * err[..., region].sum() + err[..., ~region].sum()) / (5 * cells.sum() + (~cells).sum())
+    assert float(flow_matching_loss(forward, x0, cond, None, None, None, t, noise, weight)) == \
+        pytest.approx(expected, rel=1e-5)
+    with pytest.raises(ValueError, match="weight"):
+        flow_matching_loss(forward, x0, cond, None, None, None, t, noise, ones[..., 0])
