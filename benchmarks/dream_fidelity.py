@@ -1181,11 +1181,11 @@ def tables(scored: Sequence[Scored], programs: Sequence[Program]) -> dict:
 
 # The headline metrics whose uncertainty is reported, each a ratio of sums over rollouts (so a resample of the
 # rollouts recomputes them exactly as ``summarize`` does): overall direction agreement and view-change ratio, the
-# late sharpness of random play and the bot episode (steps ``LATE_STEPS``), and the partner's balanced position
-# agreement. Draws resample the rollouts of each program with replacement, the same draws for every model, so
+# late sharpness of random play (steps ``LATE_STEPS``; the bot episode, one rollout, has no spread to resample),
+# and the partner's balanced position agreement. Draws resample the rollouts of each program with replacement, the same draws for every model, so
 # the difference between two models is paired: it carries the sampling noise of the dream, not of the starts.
 HEADLINE = ("direction_agreement", "view_change_ratio", "late_sharpness_ratio", "position_balanced_dream")
-LATE_PROGRAMS, LATE_STEPS = ("random", "bot"), (33, 256)
+LATE_PROGRAMS, LATE_STEPS = ("random",), (33, 256)
 POSITION_CLASSES = ("left", "center", "right", "no player")
 BOOTSTRAP_DRAWS, BOOTSTRAP_LEVEL, BOOTSTRAP_SEED = 2000, 0.9, 0
 
