@@ -37,7 +37,7 @@ import numpy as np
 
 from solaris_env.paths import portable_path
 from training.duet import DuetDataset
-from training.samplers import MultiplayerSegmentSampler, next_batch
+from training.samplers import MultiplayerSegmentSampler, draw_loaded, make_batch
 from training.samples import (
     contact_sheet,
     psnr_per_frame,
@@ -50,12 +50,28 @@ from training.samples import (
 )
 
 
-def _segments(dataset, num_frames: int, count: int, seed: int) -> dict[str, np.ndarray] | None:
+def start_poses(dataset: DuetDataset, segment) -> np.ndarray:
+    """(P, 5) the players' poses at a segment's first frame (record start + 1, ``DuetDataset.segment``), which a
+    partner-map model starts from (``DiTConfig.partner_map``, docs/model.md §8.6)."""
+    poses = []
+    for rec, start in zip(dataset.recordings(segment.episode_id), (segment.start1, segment.start2)):
+        if rec.pose_T5 is None:
+            raise ValueError(f"episode {segment.episode_id} of {dataset.directory} records no poses, which this "
+                             "partner-map model needs; re-collect it with `solaris-engine collect`")
+        poses.append(rec.pose_T5[start + 1])
+    return np.stack(poses).astype(np.float32)
+
+
+def _segments(dataset, num_frames: int, count: int, seed: int, poses: bool = False) -> dict[str, np.ndarray] | None:
+    """``count`` held-out segments (``next_batch``'s keys), with ``poses`` (B, P, 5) at their first frames."""
     try:
         sampler = MultiplayerSegmentSampler(dataset, num_frames, seed=seed)
     except ValueError:  # no episode is long enough
         return None
-    return next_batch(dataset, sampler, count, num_frames)
+    loaded = draw_loaded(sampler, lambda seg: (dataset.load(seg, num_frames), seg), count)
+    batch = make_batch([sample for sample, _ in loaded], num_frames)
+    batch["poses"] = np.stack([start_poses(dataset, seg) for _, seg in loaded]) if poses else None
+    return batch
 
 
 def fade_by_step(truth_BTPHW3: np.ndarray, rollouts: dict[str, np.ndarray], steps: int, k: int) -> dict:
@@ -127,13 +143,14 @@ def evaluate(model_dir: str | Path, data_dir: str | Path, out_dir: str | Path, n
                     "frames_per_step": k}
 
     # (a) + (b): short rollouts
-    seg = _segments(dataset, 1 + k * steps, num_segments, seed)
+    needs_poses = bool(cfg.dit.partner_map)
+    seg = _segments(dataset, 1 + k * steps, num_segments, seed, needs_poses)
     if seg is None:
         raise ValueError(f"no held-out episode in {data_dir}/duet/test holds {1 + k * steps} frames")
-    obs, act = seg["obs"], seg["act"]
-    gen = rollout(model, obs, act, seed)
-    gen_zero = rollout(model, obs, np.zeros_like(act), seed)
-    gen_teacher = rollout(model, obs, act, seed, teacher_forced=True)
+    obs, act, poses = seg["obs"], seg["act"], seg["poses"]
+    gen = rollout(model, obs, act, seed, poses_BP5=poses)
+    gen_zero = rollout(model, obs, np.zeros_like(act), seed, poses_BP5=poses)
+    gen_teacher = rollout(model, obs, act, seed, teacher_forced=True, poses_BP5=poses)
     copy = np.repeat(obs[:, :1], obs.shape[1], axis=1)
     ceiling = vae_reconstructor(model)(obs)
     score = lambda x: psnr_per_frame(x, obs)[:, 1:]  # (B, T-1, P): frames after the given one
@@ -156,7 +173,7 @@ def evaluate(model_dir: str | Path, data_dir: str | Path, out_dir: str | Path, n
     }
     fade = fade_by_step(obs, {"model": gen, "teacher_forced": gen_teacher, "vae_reconstruction": ceiling}, steps, k)
     result["rollout"].update(fade)
-    gen_teacher_zero = rollout(model, obs, np.zeros_like(act), seed, teacher_forced=True)
+    gen_teacher_zero = rollout(model, obs, np.zeros_like(act), seed, teacher_forced=True, poses_BP5=poses)
     result["rollout"].update(direction_by_rollout(obs, {
         "model": (gen, gen), "zero_actions": (gen_zero, gen_zero),
         "teacher_forced": (ceiling, gen_teacher), "teacher_forced_zero_actions": (ceiling, gen_teacher_zero),
@@ -168,16 +185,16 @@ def evaluate(model_dir: str | Path, data_dir: str | Path, out_dir: str | Path, n
     write_mp4(out_dir / "rollout_0.mp4", side_by_side(gen[0], obs[0]))
 
     # contact sheet: 64 steps of one segment, every 2nd step
-    sheet = _segments(dataset, 1 + k * sheet_steps, 1, seed + 1)
+    sheet = _segments(dataset, 1 + k * sheet_steps, 1, seed + 1, needs_poses)
     if sheet is not None:
-        g = rollout(model, sheet["obs"], sheet["act"], seed)
+        g = rollout(model, sheet["obs"], sheet["act"], seed, poses_BP5=sheet["poses"])
         write_png(out_dir / "contact_sheet.png", contact_sheet(g[0], sheet["obs"][0], every=2 * k))
         result["contact_sheet"] = {"steps": sheet_steps, "psnr_db": float(psnr_per_frame(g, sheet["obs"])[:, 1:].mean())}
 
     # (c) collapse over long rollouts
-    long = _segments(dataset, 1 + k * long_steps, min(num_segments, 4), seed + 2)
+    long = _segments(dataset, 1 + k * long_steps, min(num_segments, 4), seed + 2, needs_poses)
     if long is not None:
-        g = rollout(model, long["obs"], long["act"], seed)
+        g = rollout(model, long["obs"], long["act"], seed, poses_BP5=long["poses"])
         p = psnr_per_frame(g, long["obs"])  # (B, T, P)
         idx = np.arange(k, g.shape[1], k * 10)  # every 10 steps
         result["long_rollout"] = {

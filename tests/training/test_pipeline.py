@@ -9,6 +9,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from training import cli
@@ -333,6 +334,30 @@ def test_evaluate_scores_rollouts_against_copy_last_and_the_vae_ceiling(run, dat
     assert len(result["long_rollout"]["psnr_db"]) == 1
     assert json.loads((tmp_path / "eval.json").read_text())["rollout"] == r
     assert (tmp_path / "contact_sheet.png").is_file() and (tmp_path / "rollout_0.mp4").is_file()
+
+
+def test_evaluate_starts_a_partner_map_model_from_the_recorded_poses(data, tmp_path):
+    """A partner-map model (``DiTConfig.partner_map``) needs the players' poses at each segment's first frame:
+    ``evaluate`` reads them from the recordings (record start + 1, the frame ``DuetDataset.segment`` starts at)."""
+    import dataclasses
+
+    from solaris_env.world_model.config import preset
+    from solaris_env.world_model.world_model import WorldModel
+    from training.duet import DuetDataset
+    from training.episodes import SegmentMP
+    from training.evaluate import evaluate, start_poses
+
+    base = preset("test")
+    cfg = base.replace(dit=dataclasses.replace(base.dit, partner_map=10.0))
+    WorldModel.from_config(cfg, seed=0).save(tmp_path / "pm")
+    result = evaluate(tmp_path / "pm", data, tmp_path / "out", num_segments=2, steps=2, long_steps=3, sheet_steps=2)
+    assert result["rollout"]["segments"] == 2 and (tmp_path / "out" / "contact_sheet.png").is_file()
+    dataset = DuetDataset(data, "test", obs_size=(cfg.frame_height, cfg.frame_width))
+    ep = dataset.valid_ids[0]
+    recs = dataset.recordings(ep)
+    poses = start_poses(dataset, SegmentMP(ep, 3, 5))
+    np.testing.assert_array_equal(poses, np.stack([recs[0].pose_T5[4], recs[1].pose_T5[6]]))
+    assert poses.shape == (2, 5) and np.isfinite(poses).all()
 
 
 def test_all_keeps_within_its_time_budget(run, data, tmp_path, monkeypatch):
