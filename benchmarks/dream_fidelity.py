@@ -1600,7 +1600,7 @@ def print_tables(result: dict) -> None:
         for name, row in u["models"].items():
             print(f"{name[-40:]:40s} " + " ".join(f"{iv(row[m]):>24s}" for m in HEADLINE))
         for name, row in u["differences"].items():
-            print(f"{('- first: ' + name)[-40:]:40s} " + " ".join(f"{iv(row[m]):>24s}" for m in HEADLINE))
+            print(f"{'minus first: ' + name[-27:]:40s} " + " ".join(f"{iv(row[m]):>24s}" for m in HEADLINE))
     v = result["estimator_validation"]
     for key, row in v.items():
         print(f"direction estimator ({key}, engine frames): " + ", ".join(f"{k} {x}" for k, x in row.items()))
