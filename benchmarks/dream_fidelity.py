@@ -1182,8 +1182,9 @@ def tables(scored: Sequence[Scored], programs: Sequence[Program]) -> dict:
 # The headline metrics whose uncertainty is reported, each a ratio of sums over rollouts (so a resample of the
 # rollouts recomputes them exactly as ``summarize`` does): overall direction agreement and view-change ratio, the
 # late sharpness of random play (steps ``LATE_STEPS``; the bot episode, one rollout, has no spread to resample),
-# and the partner's balanced position agreement. Draws resample the rollouts of each program with replacement, the same draws for every model, so
-# the difference between two models is paired: it carries the sampling noise of the dream, not of the starts.
+# and the partner's balanced position agreement. Draws resample the rollouts of each program with replacement,
+# the same draws for every model, so the difference between two models is paired: how hard each start is, shared
+# by both, cancels, and what is left is how consistently one model differs from the other across starts.
 HEADLINE = ("direction_agreement", "view_change_ratio", "late_sharpness_ratio", "position_balanced_dream")
 LATE_PROGRAMS, LATE_STEPS = ("random",), (33, 256)
 POSITION_CLASSES = ("left", "center", "right", "no player")
