@@ -54,7 +54,6 @@ def test_stages_chain_and_write_their_outputs(run):
 def test_causal_stage_logs_its_constant_lr_and_saves_its_parameter_ema(run):
     """test.json's mp-causal: the logged LR is the configured constant; the saved model is the EMA of the
     parameters (kept in the checkpoint), not the last update."""
-    import numpy as np
     import orbax.checkpoint as ocp
     from flax import nnx
 
@@ -76,7 +75,6 @@ def test_causal_stage_logs_its_constant_lr_and_saves_its_parameter_ema(run):
 
 
 def test_sp_stage_keeps_the_player_embedding_at_zero_and_mp_learns_it(run):
-    import numpy as np
     from flax import nnx
 
     from solaris_env.world_model.world_model import WorldModel
@@ -181,7 +179,6 @@ def test_flow_stage_logs_the_held_out_loss_of_the_parameters_it_saves(run, data,
 def test_action_conditioning_rewrites_a_model_that_computes_the_same(run, tmp_path):
     """``solaris-train action-conditioning --mouse-gain``: the new config, the mouse rows rescaled, the same
     generated frames (within one grey level) for a turning rollout."""
-    import numpy as np
 
     from solaris_env.world_model.world_model import WorldModel
 
@@ -205,7 +202,6 @@ def test_action_conditioning_rewrites_a_model_that_computes_the_same(run, tmp_pa
 
 def third_step(model, first, actions):
     """The frames of a rollout's third step (from the second step on the warp reads a committed latent), int16."""
-    import numpy as np
 
     state = model.init(first, 0)
     for _ in range(3):
@@ -217,7 +213,6 @@ def test_camera_warp_retrofit_computes_the_same(run, tmp_path):
     """``action-conditioning --camera-warp``: the patch embedding gains the warped previous latent's rows at zero,
     so a turning rollout generates the same frames; turning the warp off again is refused."""
     import jax
-    import numpy as np
 
     from solaris_env.world_model.world_model import WorldModel
     from training.surgery import with_action_conditioning
