@@ -12,8 +12,8 @@ Each stage reads the previous stage's ``OUT/<stage>/model`` and resumes from its
 the defaults of the optional keys) by ``training.stage_config``; ``--steps`` overrides the stage's step count.
 ``all`` keeps within the config's wall-clock budget (``all.time_budget_min``; ``--time-budget-min``) by ending
 stage 3 early when it must (``training.budget``). ``install``, ``with-decoder``, ``with-vae``,
-``action-conditioning`` and ``official-dit`` rewrite a trained model (``training.surgery``). Heavy imports (jax)
-happen only inside the commands.
+``action-conditioning``, ``official-dit`` and ``fresh-dit`` rewrite a trained model (``training.surgery``).
+Heavy imports (jax) happen only inside the commands.
 """
 
 from __future__ import annotations
@@ -134,6 +134,12 @@ def cmd_action_conditioning(args) -> int:
 def cmd_official_dit(args) -> int:
     from training.surgery import official_dit
     print(f"wrote {official_dit(args.model, args.out, args.seed)}")
+    return 0
+
+
+def cmd_fresh_dit(args) -> int:
+    from training.surgery import fresh_dit
+    print(f"wrote {fresh_dit(args.model, args.out, args.patch, args.dim, args.layers, args.seed)}")
     return 0
 
 
@@ -262,6 +268,17 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the new model directory; RUN/vae-decoder/model lets `solaris-train sp --out RUN` start from it")
     o.add_argument("--seed", type=int, default=0, help="the DiT's initialisation seed")
     o.set_defaults(func=cmd_official_dit)
+    f = sub.add_parser("fresh-dit", help="a model's VAE and image encoder under a fresh DiT of other sizes (token "
+                                         "grid, width, depth) with all of the model's options: a new DiT lineage")
+    f.add_argument("model", help="a model/ directory, or 'default' (the shipped model)")
+    f.add_argument("--out", required=True,
+                   help="the new model directory; RUN/mp-bidirectional/model lets `solaris-train mp-causal --out RUN` "
+                        "train it")
+    f.add_argument("--patch", type=int, default=None, help="the DiT's spatial patch (default: the model's)")
+    f.add_argument("--dim", type=int, default=None, help="the DiT's width (default: the model's)")
+    f.add_argument("--layers", type=int, default=None, help="the DiT's depth (default: the model's)")
+    f.add_argument("--seed", type=int, default=0, help="the DiT's initialisation seed")
+    f.set_defaults(func=cmd_fresh_dit)
     i = sub.add_parser("install", help="copy a trained model to the package's default-model directory")
     i.add_argument("model", help="a model/ directory written by a stage or a sprint (OUT/model: shards and "
                                  "lineage.json)")
@@ -288,7 +305,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _run(args) -> int:
-    if args.command not in ("install", "with-decoder", "with-vae", "action-conditioning", "official-dit"):
+    if args.command not in ("install", "with-decoder", "with-vae", "action-conditioning", "official-dit", "fresh-dit"):
         from training.distributed import maybe_initialize_distributed
         maybe_initialize_distributed()  # multi-host when JAX_COORDINATOR_ADDRESS / JAX_NUM_PROCESSES are set
     return args.func(args)

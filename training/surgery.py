@@ -11,6 +11,8 @@ rebuilt module; none draws data or takes an optimiser step (``training.decoder_c
   (``solaris-train action-conditioning``);
 * ``official_dit``: a model's autoencoder and image encoder under a freshly initialised DiT in the official
   layout, with none of our DiT options (``solaris-train official-dit``: the start of issue 23's control row);
+* ``fresh_dit``: a model's autoencoder and image encoder under a freshly initialised DiT of other sizes (token grid,
+  width, depth) with every option of the model (``solaris-train fresh-dit``: the start of a new DiT lineage);
 * ``install_default``: a model copied, as float16 single-file weights, to the package's default-model
   directory (``solaris-train install``).
 """
@@ -198,6 +200,41 @@ def official_dit(model: str | Path, dest: str | Path, seed: int = 0) -> Path:
     fresh_dit, _, _ = WorldModel.from_config(cfg, seed=seed).params
     _, vae_state, encoder_state = base.params
     checkpoint.save(dest, cfg, dict(zip(COMPONENTS, (fresh_dit, vae_state, encoder_state))))
+    return Path(dest)
+
+
+def fresh_dit(model: str | Path, dest: str | Path, patch: int | None = None, dim: int | None = None,
+              num_layers: int | None = None, seed: int = 0) -> Path:
+    """Write ``model``'s VAE and image encoder, unchanged, with a freshly initialised DiT (``seed``) of other sizes
+    to ``dest``: ``patch`` the DiT's spatial patch (the token grid: a 16 × 16 latent at patch 2 is 64 tokens per
+    player-frame), ``dim`` its width, ``num_layers`` its depth; each left None keeps ``model``'s. Every option
+    (the warps, the skip, the partner map, the sampler) stays ``model``'s. The heads keep ``model``'s head width
+    (the DiT's and the action module's, whose hidden widths follow ``dim``), the FFN its ratio to the width, and the
+    action module runs in the first ``min(num_action_blocks, num_layers)`` blocks. Trained through stage 3, it is a
+    new lineage on the same latent space (docs/history.md, session 89)."""
+    base = WorldModel.load(model_directory(model))
+    old = base.config
+    patch = old.dit.patch_size[1] if patch is None else int(patch)
+    dim = old.dit.dim if dim is None else int(dim)
+    num_layers = old.dit.num_layers if num_layers is None else int(num_layers)
+    latent_hw = (old.latent_height, old.latent_width)
+    if patch < 1 or any(n % patch for n in latent_hw):
+        raise ValueError(f"patch={patch} must be >= 1 and divide the latent grid {latent_hw[0]}x{latent_hw[1]}")
+    if dim < 1 or dim % old.dit.head_dim or dim % old.action.head_dim:
+        raise ValueError(f"dim={dim} must be a positive multiple of the DiT's head width {old.dit.head_dim} and the "
+                         f"action module's {old.action.head_dim}")
+    if num_layers < 1:
+        raise ValueError(f"num_layers={num_layers} must be >= 1")
+    dit = dataclasses.replace(old.dit, dim=dim, num_heads=dim // old.dit.head_dim, num_layers=num_layers,
+                              ffn_dim=old.dit.ffn_dim * dim // old.dit.dim,
+                              patch_size=(old.dit.patch_size[0], patch, patch))
+    action = dataclasses.replace(old.action, mouse_hidden_dim=dim, keyboard_hidden_dim=dim,
+                                 num_heads=dim // old.action.head_dim,
+                                 num_action_blocks=min(old.action.num_action_blocks, num_layers))
+    cfg = old.replace(dit=dit, action=action)
+    fresh, _, _ = WorldModel.from_config(cfg, seed=seed).params
+    _, vae_state, encoder_state = base.params
+    checkpoint.save(dest, cfg, dict(zip(COMPONENTS, (fresh, vae_state, encoder_state))))
     return Path(dest)
 
 

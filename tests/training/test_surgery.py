@@ -1,5 +1,5 @@
-"""``training.surgery``: ``official_dit`` (``solaris-train official-dit``: the start of issue 23's control row) and
-``with_vae`` (``solaris-train with-vae``)."""
+"""``training.surgery``: ``official_dit`` (``solaris-train official-dit``: the start of issue 23's control row),
+``fresh_dit`` (``solaris-train fresh-dit``) and ``with_vae`` (``solaris-train with-vae``)."""
 
 import dataclasses
 
@@ -107,3 +107,43 @@ def test_decoder_context_refits_the_decoder_and_keeps_everything_else(tmp_path, 
     with pytest.raises(ValueError, match="decoder-context needs 'linear_patch'"):
         WorldModel.from_preset("test", seed=0).save(tmp_path / "wan")
         with_decoder_context(tmp_path / "wan", tmp_path / "dst3", 3, tiny_duet, clips=16)
+
+
+def test_fresh_dit_changes_the_sizes_and_keeps_every_option_and_the_autoencoder(tmp_path):
+    base = preset("test")
+    ours = base.replace(dit=dataclasses.replace(base.dit, camera_warp=(0.1, 0.06), walk_warp=0.1, previous_skip=True,
+                                                warp_geometry="rotation", partner_map=10.0),
+                        sampler=dataclasses.replace(base.sampler, noise_warp=0.9, still_memory=0.5))
+    WorldModel.from_config(ours, seed=3).save(tmp_path / "ours")
+    src = WorldModel.load(tmp_path / "ours")
+    old = src.config
+    patch = old.dit.patch_size[1] // 2 or 1
+    dim = 2 * old.dit.dim
+    argv = ["fresh-dit", str(tmp_path / "ours"), "--out", str(tmp_path / "fresh"), "--patch", str(patch),
+            "--dim", str(dim), "--layers", "1", "--seed", "4"]
+    assert cli.main(argv) == 0
+    fresh = WorldModel.load(tmp_path / "fresh")
+    cfg = fresh.config
+    assert cfg.dit.patch_size == (old.dit.patch_size[0], patch, patch)
+    assert (cfg.dit.dim, cfg.dit.num_layers, cfg.dit.head_dim) == (dim, 1, old.dit.head_dim)
+    assert cfg.dit.ffn_dim * old.dit.dim == old.dit.ffn_dim * dim
+    assert cfg.action.mouse_hidden_dim == cfg.action.keyboard_hidden_dim == dim
+    assert cfg.action.head_dim == old.action.head_dim and cfg.action.num_action_blocks == 1
+    # every option, the codec and the sampler are the source's: only the DiT's and action module's sizes changed
+    assert cfg.replace(dit=old.dit, action=old.action) == old
+    assert dataclasses.replace(cfg.dit, dim=old.dit.dim, num_heads=old.dit.num_heads, num_layers=old.dit.num_layers,
+                               ffn_dim=old.dit.ffn_dim, patch_size=old.dit.patch_size) == old.dit
+    for mine, theirs in zip(fresh.params[1:], src.params[1:]):
+        assert all(np.array_equal(a, b) for a, b in zip(_leaves(mine), _leaves(theirs)))
+    init = WorldModel.from_config(cfg, seed=4).params[0]
+    assert all(np.array_equal(a, b) for a, b in zip(_leaves(fresh.params[0]), _leaves(init)))
+
+
+@pytest.mark.parametrize("kwargs, field", [({"patch": 3}, "patch=3"), ({"dim": 100}, "dim=100"),
+                                           ({"num_layers": 0}, "num_layers=0")])
+def test_fresh_dit_names_the_bad_size(tmp_path, kwargs, field):
+    from training.surgery import fresh_dit
+
+    WorldModel.from_config(preset("test"), seed=0).save(tmp_path / "ours")
+    with pytest.raises(ValueError, match=field):
+        fresh_dit(tmp_path / "ours", tmp_path / "fresh", **kwargs)
