@@ -197,10 +197,7 @@ def official_dit(model: str | Path, dest: str | Path, seed: int = 0) -> Path:
                               previous_skip=False, warp_interp="linear", warp_geometry="shift")
     cfg = old.replace(dit=dit, action=dataclasses.replace(old.action, mouse_input_gain=1.0),
                       sampler=dataclasses.replace(old.sampler, noise_warp=0.0, still_memory=0.0))
-    fresh_dit, _, _ = WorldModel.from_config(cfg, seed=seed).params
-    _, vae_state, encoder_state = base.params
-    checkpoint.save(dest, cfg, dict(zip(COMPONENTS, (fresh_dit, vae_state, encoder_state))))
-    return Path(dest)
+    return _save_under_fresh_dit(base, cfg, dest, seed)
 
 
 def fresh_dit(model: str | Path, dest: str | Path, patch: int | None = None, dim: int | None = None,
@@ -231,7 +228,11 @@ def fresh_dit(model: str | Path, dest: str | Path, patch: int | None = None, dim
     action = dataclasses.replace(old.action, mouse_hidden_dim=dim, keyboard_hidden_dim=dim,
                                  num_heads=dim // old.action.head_dim,
                                  num_action_blocks=min(old.action.num_action_blocks, num_layers))
-    cfg = old.replace(dit=dit, action=action)
+    return _save_under_fresh_dit(base, old.replace(dit=dit, action=action), dest, seed)
+
+
+def _save_under_fresh_dit(base: WorldModel, cfg, dest: str | Path, seed: int) -> Path:
+    """Write ``base``'s VAE and image encoder, unchanged, with the DiT ``cfg`` initialises at ``seed`` to ``dest``."""
     fresh, _, _ = WorldModel.from_config(cfg, seed=seed).params
     _, vae_state, encoder_state = base.params
     checkpoint.save(dest, cfg, dict(zip(COMPONENTS, (fresh, vae_state, encoder_state))))
