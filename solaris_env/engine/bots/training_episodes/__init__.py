@@ -1,6 +1,6 @@
-"""The 14 training episode types and our opt-in lookAround (docs/engine.md §5.3), as per-bot choreographies,
-one module per family: ``movement``, ``combat``, ``building``, ``mining`` (their shared constants and helpers:
-``common``).
+"""The 14 training episode types and our opt-in lookAround, approach and roam (docs/engine.md §5.3), as per-bot
+choreographies, one module per family: ``movement``, ``combat``, ``building``, ``mining`` (their shared constants
+and helpers: ``common``).
 
 Each type is a generator ``behaviour(bot)`` run by both bots, plus an optional ``setup(bot)`` that hands
 out items (and, for placeAndMine, re-teleports) before recording starts. Decisions both bots must agree

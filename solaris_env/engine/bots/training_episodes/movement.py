@@ -1,5 +1,6 @@
 """Movement training types (docs/engine.md §5.3): walkLook, walkLookAway, straightLineWalk, chase, orbit, and
-our opt-in lookAround and approach. Goals far away (chase's 100 blocks) are clipped to the world's playable square."""
+our opt-in lookAround, approach and roam. Goals far away (chase's 100 blocks) are clipped to the world's playable
+square."""
 
 from __future__ import annotations
 
@@ -95,6 +96,86 @@ def look_around(bot: Bot) -> Actions:
             yield from bot.look_at_player(bot.other, BOT_LOOK_DPS)
         else:
             yield from _look_around_segment(bot)
+
+
+# ---------------------------------------------------------------------------------------------
+# roam (ours, opt-in): the envs' step actions, each held for many steps
+# ---------------------------------------------------------------------------------------------
+
+ROAM_TICKS = 800  # ~40 s per bot
+ROAM_STEP_TICKS = 4  # the envs' default ticks per step: segments are whole steps, each step's turn on its first ticks
+ROAM_SEGMENT_STEPS = (4, 24)  # each segment holds one key set and one per-step turn this many steps
+ROAM_KEYS = ((), ("forward",), ("forward",), ("forward", "sprint"), ("back",), ("left",), ("right",),
+             ("forward", "left"), ("forward", "right"), ("jump",), ("forward", "jump"))
+ROAM_STILL_PROB = 0.5  # segments whose camera holds still
+ROAM_TURN_DEG = (1.0, 15.0)  # |yaw turn per step| of the others, either sign
+ROAM_PITCH_PROB = 0.25  # a turning segment that also pitches (|pitch per step| up to half the yaw range)
+ROAM_FACE_PROB = 0.15  # a segment that first looks at the partner (the partner in view while it moves)
+ROAM_SPEED_BPS = 1.4  # blocks per step at most (sprinting): a walk that would leave the box turns inward first
+
+
+def _move_direction(bot: Bot, keys: tuple[str, ...]) -> np.ndarray | None:
+    """The unit xz direction the held WASD keys walk in (Mineflayer yaw: facing = (-sin, 0, -cos))."""
+    f = np.array([-math.sin(bot.me.yaw), 0.0, -math.cos(bot.me.yaw)])
+    r = np.array([-f[2], 0.0, f[0]])  # facing turned 90 deg to the right
+    d = f * (("forward" in keys) - ("back" in keys)) + r * (("right" in keys) - ("left" in keys))
+    n = float(np.linalg.norm(d))
+    return d / n if n > 0 else None
+
+
+def _step_turns(turn_rad: float) -> list[float]:
+    """One step's turn as the envs split it over the step's ticks (``spaces.step_ticks``): up to the per-tick cap
+    from the first tick on, on the 0.15-degree mouse grid."""
+    q = math.radians(C.LOOK_STEP_DEG)
+    n, cap = round(turn_rad / q), math.floor(MAX_TURN_RAD / q + 1e-9)
+    out = []
+    for _ in range(ROAM_STEP_TICKS):
+        m = int(np.clip(n, -cap, cap))
+        out.append(m * q)
+        n -= m
+    return out
+
+
+def _roam_segment(bot: Bot) -> Actions:
+    """One segment: a key set and a per-step yaw (and sometimes pitch) turn, held for 4-24 steps of 4 ticks."""
+    rng = bot.rng
+    steps = int(rng.integers(ROAM_SEGMENT_STEPS[0], ROAM_SEGMENT_STEPS[1] + 1))
+    keys = ROAM_KEYS[int(rng.integers(len(ROAM_KEYS)))]
+    direction = _move_direction(bot, keys)
+    if direction is not None:
+        room = ray_length_in_box(bot.game.world, bot.me.pos, direction, steps * ROAM_SPEED_BPS)
+        if room < ROAM_SEGMENT_STEPS[0] * ROAM_SPEED_BPS:  # the box edge is near: face its centre, walk on
+            world = bot.game.world
+            centre = np.asarray(world.origin, float) + np.asarray(world.shape, float) / 2
+            yield from bot.look(yaw_pitch_to(bot, centre)[0], 0.0, BOT_LOOK_DPS)
+            keys = ("forward",) + tuple(k for k in keys if k in ("sprint", "jump"))
+        else:
+            steps = min(steps, max(ROAM_SEGMENT_STEPS[0], int(room / ROAM_SPEED_BPS)))
+    dyaw = dpitch = 0.0
+    if rng.random() >= ROAM_STILL_PROB:
+        dyaw = math.radians(rng.uniform(*ROAM_TURN_DEG)) * (1 if rng.random() < 0.5 else -1)
+        if rng.random() < ROAM_PITCH_PROB:
+            dpitch = math.radians(rng.uniform(0.0, ROAM_TURN_DEG[1] / 2)) * (1 if rng.random() < 0.5 else -1)
+    held = {k: 1 for k in keys}
+    limit = math.radians(LOOK_AROUND_PITCH_MAX_DEG)
+    for _ in range(steps):
+        for ty, tp in zip(_step_turns(dyaw), _step_turns(dpitch)):
+            tp = tp if abs(bot.me.pitch + tp) <= limit else 0.0
+            yield act((ty, tp), **held)
+
+
+def roam(bot: Bot) -> Actions:
+    """Both bots hold the envs' step actions for ~40 s: segments of 4-24 steps that each keep one key set (walking,
+    sprinting, backing, strafing, jumping, or none) and one per-step turn (none half the time, else 1-15 deg per
+    step either way), now and then after a look at the partner. Not a reference type: world-model data with the
+    long held actions a user or an RL policy sends, which the reference mix holds for 3 steps on average."""
+    yield from bot.barrier("roam")
+    yield from bot.look_at_player(bot.other, BOT_LOOK_DPS)
+    start = bot.game.tick
+    while bot.game.tick - start < ROAM_TICKS:
+        if bot.rng.random() < ROAM_FACE_PROB:
+            yield from bot.look_at_player(bot.other, BOT_LOOK_DPS)
+        yield from _roam_segment(bot)
 
 
 LOOK_AWAY_SPREAD_DEG = 90.0  # walkLookAway turns to yaw + 180 deg + U(-90, 90) deg
@@ -280,4 +361,5 @@ EPISODE_TYPES = (
     EpisodeSpec("walkLookAway", "Movement", 60, 10, 15, walk_look_away),
     EpisodeSpec("lookAround", "Movement", 30, 6, 12, look_around, in_default_mix=False),
     EpisodeSpec("approach", "Movement", 20, 6, 12, approach, in_default_mix=False),
+    EpisodeSpec("roam", "Movement", 40, 6, 12, roam, in_default_mix=False),
 )

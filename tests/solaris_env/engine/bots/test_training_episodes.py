@@ -194,7 +194,7 @@ def test_sampled_type_uses_the_shared_rng():
 
 
 def test_look_around_is_opt_in():
-    assert registry.opt_in_training_types() == ["approach", "lookAround"]
+    assert registry.opt_in_training_types() == ["approach", "lookAround", "roam"]
     assert "lookAround" not in registry.training_types() and "lookAround" not in registry.sampling_weights()
     assert registry.sampling_weights(["lookAround"]) == {"lookAround": 1.0}  # named: the only type sampled
 
@@ -259,3 +259,42 @@ def test_day_episodes_start_at_noon_and_play_the_same_as_the_cycle():
 def test_time_of_day_names_its_values():
     with pytest.raises(ValueError, match="time_of_day must be one of"):
         EpisodeConfig(seed=0, time_of_day="night")
+
+
+# ---------------------------------------------------------------------------------------------
+# roam (ours, opt-in)
+# ---------------------------------------------------------------------------------------------
+
+
+def _held_runs(keys_T: np.ndarray) -> list[int]:
+    """Lengths (ticks) of the runs of an unchanged key set."""
+    change = np.flatnonzero(np.any(keys_T[1:] != keys_T[:-1], axis=1)) + 1
+    return np.diff(np.concatenate([[0], change, [len(keys_T)]])).tolist()
+
+
+@pytest.mark.parametrize("world_kind", WORLD_KINDS)
+def test_roam_holds_step_actions_for_many_steps_and_walks(world_kind):
+    """Key sets held for >= 4 steps of 4 ticks on most ticks, every WASD key used (by the two players together), the
+    camera still on a good share of the walking ticks and turning both ways on others (within the per-tick cap), and
+    the players really move."""
+    out = _run("roam", world_kind)
+    assert not out.aborted, out.abort_reason
+    assert registry.EPISODES["roam"].in_default_mix is False
+    used = np.zeros(4, int)
+    for recs in out.trace.records:
+        recs = recs[IDLE_TICKS:]
+        keys = np.array([[rec["action"][k] for k in ("forward", "back", "left", "right", "sprint", "jump")]
+                         for rec in recs], int)
+        runs = np.array(_held_runs(keys))
+        assert runs[runs >= 16].sum() > 0.6 * len(recs)
+        used += keys[:, :4].sum(axis=0)
+        camera = np.array([rec["action"]["camera"] for rec in recs])
+        assert np.abs(camera).max() <= MAX_CAMERA_RAD
+        turning = np.abs(camera).sum(axis=1) > 1e-6
+        walking = keys[:, :4].any(axis=1)
+        assert 0.3 < 1 - turning[walking].mean() < 0.9
+        yaw = camera[:, 0] if np.abs(camera[:, 0]).sum() >= np.abs(camera[:, 1]).sum() else camera[:, 1]
+        assert (yaw > 0).sum() > 20 and (yaw < 0).sum() > 20
+        xz = np.array([[rec["x"], rec["z"]] for rec in recs])
+        assert np.hypot(*np.diff(xz, axis=0).T).sum() > 50.0
+    assert (used > 16).all(), used  # both players together use every WASD key
