@@ -168,7 +168,7 @@ def roam(bot: Bot) -> Actions:
     """Both bots hold the envs' step actions for ~40 s: segments of 4-24 steps that each keep one key set (walking,
     sprinting, backing, strafing, jumping, or none) and one per-step turn (none half the time, else 1-15 deg per
     step either way), now and then after a look at the partner. Not a reference type: world-model data with the
-    long held actions a user or an RL policy sends, which the reference mix holds for 3 steps on average."""
+    long held actions a user or an RL policy sends (the reference mix holds a still-camera forward for ~3 steps)."""
     yield from bot.barrier("roam")
     yield from bot.look_at_player(bot.other, BOT_LOOK_DPS)
     start = bot.game.tick
