@@ -191,7 +191,10 @@ def test_a_zero_map_row_keeps_the_function_and_the_state_tracks_the_poses(tmp_pa
     for a in actions:
         f_base, s_base = base.step(s_base, a)
         f_pm, s_pm = pm.step(s_pm, a)
-        np.testing.assert_array_equal(f_base, f_pm)  # the zero row: the same frames, bit for bit
+        # the zero row: the same frames up to float rounding (the extra input channel changes the patch matmul's
+        # shape, and with it XLA's summation order on some CPUs): a grey level on a few pixels at most
+        diff = np.abs(np.asarray(f_base, np.int16) - np.asarray(f_pm, np.int16))
+        assert diff.max() <= 1 and np.count_nonzero(diff) <= 1e-3 * diff.size, (diff.max(), np.count_nonzero(diff))
         poses_BPK5, track = partner.track(track, jnp.asarray(a[..., 23:]), jnp.asarray(a[..., :23]))
         np.testing.assert_allclose(s_pm.track_BP7, track, atol=1e-5)
         maps = partner.partner_maps(jnp.moveaxis(poses_BPK5, 2, 1), *s_pm.partner_BPhw.shape[-2:]).mean(axis=1)
