@@ -49,6 +49,12 @@ def _playable_box(world: World) -> tuple[np.ndarray, float]:
     return centre, min(sx, sz) / 2 - PLAYABLE_MARGIN - EDGE_MARGIN
 
 
+def playable_centre(world: World) -> np.ndarray:
+    """The centre (x, 0, z) of the square that goals must stay inside."""
+    centre, _ = _playable_box(world)
+    return np.array([centre[0], 0.0, centre[1]])
+
+
 def clamp_xz(world: World, point: np.ndarray) -> np.ndarray:
     centre, half = _playable_box(world)
     out = np.array(point, float)

@@ -23,6 +23,7 @@ from solaris_env.engine.bots.training_episodes.common import (
     WALK_MIN,
     WALK_TIMEOUT_S,
     clamp_xz,
+    playable_centre,
     ray_length_in_box,
     seconds_to_ticks,
     yaw_pitch_to,
@@ -145,9 +146,7 @@ def _roam_segment(bot: Bot) -> Actions:
     if direction is not None:
         room = ray_length_in_box(bot.game.world, bot.me.pos, direction, steps * ROAM_SPEED_BPS)
         if room < ROAM_SEGMENT_STEPS[0] * ROAM_SPEED_BPS:  # the box edge is near: face its centre, walk on
-            world = bot.game.world
-            centre = np.asarray(world.origin, float) + np.asarray(world.shape, float) / 2
-            yield from bot.look(yaw_pitch_to(bot, centre)[0], 0.0, BOT_LOOK_DPS)
+            yield from bot.look(yaw_pitch_to(bot, playable_centre(bot.game.world))[0], 0.0, BOT_LOOK_DPS)
             keys = ("forward",) + tuple(k for k in keys if k in ("sprint", "jump"))
         else:
             steps = min(steps, max(ROAM_SEGMENT_STEPS[0], int(room / ROAM_SPEED_BPS)))
